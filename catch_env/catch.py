@@ -1,0 +1,450 @@
+"""Catch: the thesis's bouncing-ball test bed (section 5.4), and its NumPy vector twin.
+
+The rules, the random start states and the drawing tables live once, in `CatchRules`;
+`CatchEnv` plays one game with Python scalars (fast for a single env) and
+`CatchVectorEnv` plays N games with NumPy arrays. Both draw incrementally: the canvas
+only ever holds the ball and the paddle, so a step erases the ball's old cell, rewrites
+the paddle's band of rows and draws the ball's new cell instead of redrawing the frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+ACTION_MEANINGS = ("NOOP", "LEFT", "RIGHT")
+# Paddle direction per action, in grid columns.
+ACTION_DIRECTION = (0, -1, 1)
+BALL_START_ROW = 4
+# The paddle sits on row grid_size - 5, leaving four empty rows below it (row 19 of 24).
+PADDLE_ROW_FROM_BOTTOM = 5
+MAX_BALL_SPEED = 2
+OBS_SIZE = 84
+OBS_TYPES = ("pixels", "grid")
+ON, OFF = 255, 0
+
+_VALID_ACTIONS = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_MEANINGS))
+
+
+def _check_int(name: str, value: Any, low: int, high: int, extra: str = "") -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer in [{low}, {high}]{extra}, got {value!r}")
+    if not low <= value <= high:
+        raise ValueError(f"{name} must be in [{low}, {high}]{extra}, got {value}")
+    return int(value)
+
+
+@dataclass(frozen=True)
+class CatchRules:
+    """The game's geometry, dynamics and drawing tables, shared by the single and vector env.
+
+    The dynamics are written once with arithmetic that works on Python ints and on NumPy
+    arrays alike, so both envs step with the same code.
+    """
+
+    grid_size: int = 24
+    paddle_width: int = 5
+    paddle_speed: int = 2
+    obs_type: str = "pixels"
+
+    def __post_init__(self) -> None:
+        size = _check_int("grid_size", self.grid_size, 10, OBS_SIZE)
+        _check_int("paddle_width", self.paddle_width, 1, size, " and odd")
+        if self.paddle_width % 2 == 0:
+            raise ValueError(
+                f"paddle_width must be odd (the paddle has a centre cell), got {self.paddle_width}"
+            )
+        _check_int("paddle_speed", self.paddle_speed, 1, size - 1)
+        if self.obs_type not in OBS_TYPES:
+            raise ValueError(f"obs_type must be one of {OBS_TYPES}, got {self.obs_type!r}")
+        # Drawing tables: cell c covers canvas pixels [cell_start[c], cell_stop[c]).
+        # The 84x84 frame is the grid upscaled by nearest neighbour (pixel p shows cell
+        # floor(p * grid_size / 84)), so cells are crisp blocks of 3 or 4 pixels.
+        side = self.obs_side
+        pixel_cell = np.arange(side) * size // side
+        cell_start = np.searchsorted(pixel_cell, np.arange(size), side="left")
+        cell_stop = np.searchsorted(pixel_cell, np.arange(size), side="right")
+        # Every cell's pixel indices padded to a common length by repeating the last one,
+        # so the vector env can address a ball cell of any env as one fixed-size block.
+        block = int((cell_stop - cell_start).max())
+        cell_pixels = np.minimum(cell_start[:, None] + np.arange(block), cell_stop[:, None] - 1)
+        # The paddle's row of pixels for every centre column.
+        paddle_line = np.zeros((size, side), dtype=np.uint8)
+        for centre in range(self.paddle_min, self.paddle_max + 1):
+            lo, hi = centre - self.paddle_half, centre + self.paddle_half
+            paddle_line[centre, cell_start[lo] : cell_stop[hi]] = ON
+        for name, table in [
+            ("pixel_cell", pixel_cell),
+            ("cell_start", cell_start),
+            ("cell_stop", cell_stop),
+            ("cell_pixels", cell_pixels),
+            ("paddle_line", paddle_line),
+        ]:
+            table.setflags(write=False)
+            object.__setattr__(self, name, table)
+
+    # Geometry -------------------------------------------------------------------------
+    @property
+    def obs_side(self) -> int:
+        return OBS_SIZE if self.obs_type == "pixels" else self.grid_size
+
+    @property
+    def paddle_row(self) -> int:
+        return self.grid_size - PADDLE_ROW_FROM_BOTTOM
+
+    @property
+    def paddle_half(self) -> int:
+        return self.paddle_width // 2
+
+    @property
+    def paddle_min(self) -> int:
+        return self.paddle_half
+
+    @property
+    def paddle_max(self) -> int:
+        return self.grid_size - 1 - self.paddle_half
+
+    @property
+    def episode_length(self) -> int:
+        return self.paddle_row - BALL_START_ROW
+
+    def observation_space(self) -> spaces.Box:
+        return spaces.Box(OFF, ON, (self.obs_side, self.obs_side), np.uint8)
+
+    # Dynamics (Python ints or NumPy arrays) -------------------------------------------
+    def start_state(self, uniforms: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ball column, ball speed and paddle centre from three U[0, 1) draws per game.
+
+        Drawing floats (one 64-bit draw each) rather than bounded integers keeps a batch of
+        draws identical to the same draws made one game at a time, which is what lets the
+        vector env reproduce N single envs exactly.
+        """
+        u = np.asarray(uniforms)
+        ball_col = (u[..., 0] * self.grid_size).astype(np.int64)
+        ball_vx = (u[..., 1] * (2 * MAX_BALL_SPEED + 1)).astype(np.int64) - MAX_BALL_SPEED
+        span = self.paddle_max - self.paddle_min + 1
+        paddle = self.paddle_min + (u[..., 2] * span).astype(np.int64)
+        return ball_col, ball_vx, paddle
+
+    def move_ball(self, col, vx):
+        """Move one column step of vx, bouncing off the side walls (reflect and flip vx)."""
+        col = col + vx
+        right, left = col > self.grid_size - 1, col < 0
+        col = col - 2 * (col - (self.grid_size - 1)) * right - 2 * col * left
+        return col, vx - 2 * vx * (right | left)
+
+    def move_paddle(self, centre, direction):
+        """Move paddle_speed cells in direction; a move that would leave the grid does nothing."""
+        target = centre + self.paddle_speed * direction
+        inside = (target >= self.paddle_min) & (target <= self.paddle_max)
+        return centre + (target - centre) * inside
+
+    def caught(self, ball_col, paddle):
+        return abs(ball_col - paddle) <= self.paddle_half
+
+    def to_pixels(self, grid: np.ndarray) -> np.ndarray:
+        """Upscale a grid image (..., G, G) to the 84x84 frame by nearest neighbour."""
+        if self.obs_type == "pixels":
+            return grid
+        cells = np.arange(OBS_SIZE) * self.grid_size // OBS_SIZE
+        return grid[..., cells[:, None], cells[None, :]]
+
+
+def _action_error(action: Any) -> ValueError:
+    return ValueError(f"Invalid action {action!r}: valid actions are {_VALID_ACTIONS}.")
+
+
+class CatchEnv(gym.Env[np.ndarray, np.int64]):
+    """Catch, as in section 5.4 of the thesis.
+
+    A ball starts on row 4 of a 24x24 grid at a uniformly random column, with horizontal
+    speed vx uniform in {-2, ..., 2}. Each step it falls one row and moves vx columns,
+    bouncing off the side walls. A 5-cell paddle on row 19 starts with its centre uniform
+    in 2..21 and moves 2 cells per step.
+
+    ## Action space
+    `Discrete(3)`: 0 NOOP, 1 LEFT, 2 RIGHT (ALE order, so no-op based tools work). A move
+    that would take the paddle off the grid does nothing.
+
+    ## Observation space
+    `obs_type="pixels"` (default): `Box(0, 255, (84, 84), uint8)`, the grid upscaled by
+    nearest neighbour, ball and paddle 255 on a 0 background. `obs_type="grid"`:
+    `Box(0, 255, (24, 24), uint8)`, one value per cell with the same colours.
+
+    ## Rewards
+    1 when the ball reaches the paddle row within `paddle_width // 2` columns of the
+    paddle's centre, else 0. Every other step gives 0.
+
+    ## Episode end
+    Terminates when the ball reaches the paddle row: after exactly 15 steps with the
+    default geometry (`grid_size - 9` in general). Never truncates. Stepping a terminated
+    episode without `reset()` raises `RuntimeError`.
+
+    ## Arguments
+    `gym.make("Catch-v0", grid_size=24, paddle_width=5, paddle_speed=2, obs_type="pixels",
+    render_mode=None)`. The defaults are the thesis values; an invalid value raises
+    `ValueError` naming the valid range. `render_mode="rgb_array"` returns the 84x84 frame
+    as HxWx3 uint8; `"human"` shows it in a pygame window, created at the first render.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        grid_size: int = 24,
+        paddle_width: int = 5,
+        paddle_speed: int = 2,
+        obs_type: Literal["pixels", "grid"] = "pixels",
+        render_mode: str | None = None,
+    ) -> None:
+        self.rules = CatchRules(grid_size, paddle_width, paddle_speed, obs_type)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        self.observation_space = self.rules.observation_space()
+        self.action_space = spaces.Discrete(len(ACTION_MEANINGS))
+        self._canvas = np.zeros(self.observation_space.shape, dtype=np.uint8)
+        # Python lists: indexing them is several times faster than NumPy scalars.
+        self._cell_start = self.rules.cell_start.tolist()
+        self._cell_stop = self.rules.cell_stop.tolist()
+        self.ball_row = self.ball_col = self.ball_vx = self.paddle = 0
+        self._terminated = True
+        self._has_state = False
+        self._window = None
+
+    def get_action_meanings(self) -> list[str]:
+        return list(ACTION_MEANINGS)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        ball_col, ball_vx, paddle = self.rules.start_state(self.np_random.random(3))
+        self._erase_ball()
+        self.ball_row, self.ball_col, self.ball_vx = BALL_START_ROW, int(ball_col), int(ball_vx)
+        self.paddle = int(paddle)
+        self._draw()
+        self._terminated, self._has_state = False, True
+        if self.render_mode == "human":
+            self.render()
+        return self._canvas.copy(), {}
+
+    def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        if type(action) is not int:
+            integer_array = isinstance(action, np.ndarray) and action.dtype.kind in "iu"
+            if not (isinstance(action, np.integer) or (integer_array and action.shape == ())):
+                raise _action_error(action)
+            action = int(action)
+        if not 0 <= action < 3:
+            raise _action_error(action)
+        if self._terminated:
+            raise RuntimeError(
+                "Cannot step: the episode has ended (or never started). Call reset() first."
+            )
+        rules = self.rules
+        self._erase_ball()
+        self.ball_row += 1
+        self.ball_col, self.ball_vx = rules.move_ball(self.ball_col, self.ball_vx)
+        self.paddle = rules.move_paddle(self.paddle, ACTION_DIRECTION[action])
+        self._draw()
+        terminated = self.ball_row == rules.paddle_row
+        reward = 1.0 if terminated and rules.caught(self.ball_col, self.paddle) else 0.0
+        self._terminated = terminated
+        if self.render_mode == "human":
+            self.render()
+        return self._canvas.copy(), reward, terminated, False, {}
+
+    def _erase_ball(self) -> None:
+        if self._has_state:
+            start, stop = self._cell_start, self._cell_stop
+            row, col = self.ball_row, self.ball_col
+            self._canvas[start[row] : stop[row], start[col] : stop[col]] = OFF
+
+    def _draw(self) -> None:
+        start, stop = self._cell_start, self._cell_stop
+        row, col, paddle_row = self.ball_row, self.ball_col, self.rules.paddle_row
+        self._canvas[start[paddle_row] : stop[paddle_row]] = self.rules.paddle_line[self.paddle]
+        self._canvas[start[row] : stop[row], start[col] : stop[col]] = ON
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn(
+                "Calling render() without a render_mode; make the env with "
+                'render_mode="rgb_array" or "human".'
+            )
+            return None
+        frame = np.repeat(self.rules.to_pixels(self._canvas)[:, :, None], 3, axis=2)
+        if self.render_mode == "rgb_array":
+            return frame
+        if self._window is None:
+            from catch_env.rendering import Window
+
+            self._window = Window("Catch-v0", frame.shape[:2], zoom=6)
+        self._window.show(frame, fps=self.metadata["render_fps"])
+        return None
+
+    def close(self) -> None:
+        if self._window is not None:
+            self._window.close()
+            self._window = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        # A pygame window cannot be pickled; the copy opens its own on the next render.
+        state = self.__dict__.copy()
+        state["_window"] = None
+        return state
+
+
+class CatchVectorEnv(VectorEnv):
+    """N games of Catch stepped together with NumPy; the vector entry point of Catch-v0.
+
+    `gym.make_vec("Catch-v0", num_envs=N)` builds it. It matches a `SyncVectorEnv` of N
+    `CatchEnv`s exactly: the same seeds (an int seed s gives env i the seed s + i) and
+    actions give the same observations, rewards, terminations and truncations. It uses
+    Gymnasium's next-step autoreset: the step after an env terminates resets it, ignores
+    its action and returns reward 0.
+
+    `copy=True` (the default, as in `SyncVectorEnv`) returns fresh observation arrays;
+    `copy=False` returns the env's own buffer, which the next step overwrites: faster,
+    for callers that copy the observations themselves (as a training loop does when it
+    writes them into its rollout storage). `infos` is always empty.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        grid_size: int = 24,
+        paddle_width: int = 5,
+        paddle_speed: int = 2,
+        obs_type: Literal["pixels", "grid"] = "pixels",
+        render_mode: str | None = None,
+        copy: bool = True,
+        start_buffer: int = 64,
+    ) -> None:
+        self.num_envs = _check_int("num_envs", num_envs, 1, 2**24)
+        self.rules = CatchRules(grid_size, paddle_width, paddle_speed, obs_type)
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.copy = copy
+        self.single_observation_space = self.rules.observation_space()
+        self.single_action_space = spaces.Discrete(len(ACTION_MEANINGS))
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+        n = self.num_envs
+        self._obs = np.zeros((n, *self.single_observation_space.shape), dtype=np.uint8)
+        self._env_index = np.arange(n)[:, None, None]
+        self._direction = np.array(ACTION_DIRECTION)
+        self.ball_row = np.full(n, BALL_START_ROW)
+        self.ball_col = np.zeros(n, dtype=np.int64)
+        self.ball_vx = np.zeros(n, dtype=np.int64)
+        self.paddle = np.zeros(n, dtype=np.int64)
+        self._needs_reset = np.ones(n, dtype=bool)
+        self._has_state = False
+        # One generator per env, as in N single envs. Start states are drawn `start_buffer`
+        # games at a time per env, in one call, to keep the per-env Python loop rare.
+        self._start_buffer = _check_int("start_buffer", start_buffer, 1, 2**16)
+        self._rngs = [seeding.np_random()[0] for _ in range(n)]
+        self._starts = np.zeros((n, self._start_buffer, 3))
+        self._starts_used = np.full(n, self._start_buffer)
+
+    def get_action_meanings(self) -> list[str]:
+        return list(ACTION_MEANINGS)
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:
+            seeds = [seed + i for i in range(self.num_envs)] if isinstance(seed, int) else seed
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"Expected {self.num_envs} seeds, got {len(seeds)}")
+            self._rngs = [seeding.np_random(s)[0] for s in seeds]
+            self._starts_used[:] = self._start_buffer
+        mask = np.ones(self.num_envs, dtype=bool)
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], dtype=bool)
+            if mask.shape != (self.num_envs,):
+                raise ValueError(f"reset_mask must have shape ({self.num_envs},), got {mask.shape}")
+        self._erase_balls()
+        self._start_games(np.flatnonzero(mask))
+        self._draw()
+        self._needs_reset &= ~mask
+        self._has_state = True
+        return self._observations(), {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        actions = np.asarray(actions)
+        if actions.shape != (self.num_envs,) or actions.dtype.kind not in "iu":
+            raise ValueError(
+                f"actions must be an integer array of shape ({self.num_envs},) with values "
+                f"{_VALID_ACTIONS}; got {actions.dtype} array of shape {actions.shape}"
+            )
+        if actions.size and (actions.min() < 0 or actions.max() >= 3):
+            raise _action_error(actions)
+        if not self._has_state:
+            raise RuntimeError("Cannot step before reset(): call reset() first.")
+        rules = self.rules
+        self._erase_balls()
+        self.ball_row += 1
+        self.ball_col, self.ball_vx = rules.move_ball(self.ball_col, self.ball_vx)
+        self.paddle = rules.move_paddle(self.paddle, self._direction[actions])
+        resetting = self._needs_reset
+        if resetting.any():
+            self._start_games(np.flatnonzero(resetting))
+        self._draw()
+        terminated = self.ball_row == rules.paddle_row
+        rewards = (terminated & rules.caught(self.ball_col, self.paddle)).astype(np.float32)
+        self._needs_reset = terminated
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        return self._observations(), rewards, terminated.copy(), truncated, {}
+
+    def _start_games(self, envs: np.ndarray) -> None:
+        if envs.size == 0:
+            return
+        for env in envs[self._starts_used[envs] == self._start_buffer]:
+            self._starts[env] = self._rngs[env].random((self._start_buffer, 3))
+            self._starts_used[env] = 0
+        uniforms = self._starts[envs, self._starts_used[envs]]
+        self._starts_used[envs] += 1
+        self.ball_col[envs], self.ball_vx[envs], self.paddle[envs] = self.rules.start_state(
+            uniforms
+        )
+        self.ball_row[envs] = BALL_START_ROW
+
+    def _ball_block(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        pixels = self.rules.cell_pixels
+        return self._env_index, pixels[self.ball_row][:, :, None], pixels[self.ball_col][:, None, :]
+
+    def _erase_balls(self) -> None:
+        if self._has_state:
+            self._obs[self._ball_block()] = OFF
+
+    def _draw(self) -> None:
+        rules = self.rules
+        start, stop = rules.cell_start[rules.paddle_row], rules.cell_stop[rules.paddle_row]
+        self._obs[:, start:stop] = rules.paddle_line[self.paddle][:, None, :]
+        self._obs[self._ball_block()] = ON
+
+    def _observations(self) -> np.ndarray:
+        return self._obs.copy() if self.copy else self._obs
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        if self.render_mode != "rgb_array":
+            return None
+        frames = np.repeat(self.rules.to_pixels(self._obs)[..., None], 3, axis=-1)
+        return tuple(frames)
