@@ -49,7 +49,7 @@ def grid_image(ball_row: int, ball_col: int, paddle: int) -> np.ndarray:
 
 
 def test_make_in_fresh_interpreter_with_module_prefix():
-    code = "import gymnasium as gym; e = gym.make('catch_env:Catch-v0'); print(e.reset(seed=0)[0].shape)"
+    code = "import gymnasium as g; print(g.make('catch_env:Catch-v0').reset(seed=0)[0].shape)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "(84, 84)"
 
@@ -131,7 +131,7 @@ def test_pixels_are_the_grid_upscaled_crisply():
     pixel_env, grid_env = CatchEnv(), CatchEnv(obs_type="grid")
     for seed in range(5):
         for (pixels, *_), (grid, *_) in zip(
-            play(pixel_env, [1, 2, 0] * 5, seed), play(grid_env, [1, 2, 0] * 5, seed)
+            play(pixel_env, [1, 2, 0] * 5, seed), play(grid_env, [1, 2, 0] * 5, seed), strict=True
         ):
             np.testing.assert_array_equal(pixels, grid[np.ix_(PIXEL_CELL, PIXEL_CELL)])
             assert set(np.unique(pixels)) <= {0, 255}
@@ -173,7 +173,7 @@ def test_invariants(seed, actions, obs_type):
         if obs_type == "pixels":
             expected = expected[np.ix_(PIXEL_CELL, PIXEL_CELL)]
         np.testing.assert_array_equal(obs, expected)
-        # Episodes are 15 steps; reward 1 exactly at a termination where the ball lands on the paddle.
+        # Episodes last 15 steps; reward 1 exactly at a termination with the ball on the paddle.
         assert terminated == (step == EPISODE_LENGTH) and not truncated
         caught = terminated and abs(env.ball_col - env.paddle) <= 2
         assert reward == (1.0 if caught else 0.0)
@@ -216,7 +216,7 @@ def test_step_before_reset_raises():
 def test_same_seed_same_actions_same_trajectory():
     actions = [0, 1, 2, 2, 1, 0, 1, 1, 2, 0, 0, 2, 1, 2, 0]
     first, second = play(CatchEnv(), actions, 42), play(CatchEnv(), actions, 42)
-    for (obs_a, r_a, t_a), (obs_b, r_b, t_b) in zip(first, second):
+    for (obs_a, r_a, t_a), (obs_b, r_b, t_b) in zip(first, second, strict=True):
         np.testing.assert_array_equal(obs_a, obs_b)
         assert (r_a, t_a) == (r_b, t_b)
     starts = {tuple(play(CatchEnv(), [], s)[0][0].ravel().nonzero()[0][:3]) for s in range(20)}
@@ -300,7 +300,7 @@ def test_vector_env_equals_sync_vector_env_of_single_envs(obs_type):
             np.testing.assert_array_equal(obs_v, obs_s)
         actions = rng.integers(0, 3, n)
         out_v, out_s = vector.step(actions), sync.step(actions)
-        for got, expected in zip(out_v[:4], out_s[:4]):
+        for got, expected in zip(out_v[:4], out_s[:4], strict=True):
             np.testing.assert_array_equal(got, expected)
     # An unseeded reset continues every env's own generator, as N single envs would.
     np.testing.assert_array_equal(vector.reset()[0], sync.reset()[0])
@@ -334,7 +334,7 @@ def test_vector_env_invalid_actions_raise_and_keep_the_state(actions):
     with pytest.raises(ValueError, match="0 NOOP, 1 LEFT, 2 RIGHT"):
         envs.step(actions)
     after = (envs.ball_row, envs.ball_col, envs.paddle, envs._obs)
-    for a, b in zip(before, after):
+    for a, b in zip(before, after, strict=True):
         np.testing.assert_array_equal(a, b)
 
 

@@ -26,7 +26,7 @@ def test_catch_gives_a_stack_of_four_frames_cleared_on_reset():
     assert obs.shape == (4, 84, 84) and obs.dtype == np.uint8
     # The first state of an episode repeats its first frame (no frames of another episode).
     assert all(np.array_equal(obs[0], frame) for frame in obs)
-    for step in range(15):
+    for _ in range(15):
         previous = obs
         obs, reward, terminated, truncated, info = env.step(0)
         np.testing.assert_array_equal(obs[:3], previous[1:])  # action repeat 1: one new frame
