@@ -359,6 +359,7 @@ class Shared:
         self.stats = torch.zeros(args.num_workers, len(self.STATS), dtype=torch.float64)
         self.stats.share_memory_()
         self.ready = torch.zeros(args.num_workers, dtype=torch.int64).share_memory_()
+        self.evaluator_ready = ctx.Event()  # the workers start once it has the initial network
         self.stop = ctx.Event()  # tells the workers to stop after their rollout
         self.final_eval = ctx.Event()  # training finished: the evaluator plays the last one
         self.stop_evaluator = ctx.Event()  # interrupted or failed: no final evaluation
@@ -407,6 +408,9 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
     obs, _ = env.reset(seed=args.seed + worker_id)
     obs_buf[0].copy_(torch.from_numpy(obs))
+    while not shared.evaluator_ready.wait(0.1):  # so that the first evaluation sees step 0
+        if terminate_requested or shared.stop.is_set() or os.getppid() != parent_pid:
+            return
     shared.ready[worker_id] = 1
 
     while not (terminate_requested or shared.stop.is_set()) and os.getppid() == parent_pid:
@@ -489,14 +493,19 @@ def evaluator(shared: Shared, args: Args, run_dir: str, parent_pid: int) -> None
             for i in range(args.eval_episodes)]  # fmt: skip
     model = ActorCritic(envs[0].action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
-    next_eval = 0 if shared.global_step() == 0 else shared.global_step() + args.eval_interval
-    next_eval -= next_eval % args.eval_interval
+    start_step = shared.global_step()  # the workers wait for evaluator_ready
+    next_eval = (
+        0 if start_step == 0 else (start_step // args.eval_interval + 1) * args.eval_interval
+    )
+    if next_eval > 0:
+        shared.evaluator_ready.set()
     while not terminate_requested and os.getppid() == parent_pid:
         final = shared.final_eval.is_set()
         global_step = shared.global_step()
         if final or (global_step >= next_eval and global_step < args.total_timesteps):
             with torch.no_grad():
                 torch._foreach_copy_(params, shared.params)
+            shared.evaluator_ready.set()  # the initial network is copied: the workers may start
             start = time.time()
             scores = play_episodes(model, envs, rng.integers(2**31, size=len(envs)).tolist())
             shared.evaluations.put(

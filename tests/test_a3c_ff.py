@@ -1,0 +1,204 @@
+"""End-to-end tests of agents/a3c_ff.py, run as a subprocess on tiny budgets with 2 workers."""
+
+import csv
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "agents" / "a3c_ff.py"
+TINY = ["--num-workers", "2", "--eval-episodes", "5", "--log-interval", "1"]
+
+
+def run(*flags: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(SCRIPT), *flags],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=ROOT,
+    )
+
+
+def read_evaluations(run_dir: Path) -> list[dict]:
+    with open(run_dir / "evaluations.csv") as f:
+        return list(csv.DictReader(f))
+
+
+def start(*flags: str) -> tuple[subprocess.Popen, dict[str, int]]:
+    """Start a long run in its own process group; return it and its processes' pids."""
+    process = subprocess.Popen(
+        [sys.executable, str(SCRIPT), *flags],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        start_new_session=True,
+    )
+    for line in process.stdout:
+        if line.startswith("pids: "):
+            pids = {m[0]: int(m[1]) for m in re.findall(r"(\w+ ?\d*) (\d+)", line[6:])}
+            return process, pids
+    raise AssertionError(f"no pids line; stderr: {process.stderr.read()}")
+
+
+def wait_for_progress(process: subprocess.Popen) -> None:
+    """Wait for the first progress line, so that every worker has started learning."""
+    for line in process.stdout:
+        if line.startswith("step "):
+            return
+    raise AssertionError(f"no progress line; stderr: {process.stderr.read()}")
+
+
+def assert_all_gone(pids: dict[str, int]) -> None:
+    deadline = time.time() + 10
+    for name, pid in pids.items():
+        while os.path.exists(f"/proc/{pid}") and time.time() < deadline:
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().split(") ")[1].startswith("Z"):  # zombie: exited, not yet reaped
+                    break
+            time.sleep(0.05)
+        else:
+            assert not os.path.exists(f"/proc/{pid}"), f"{name} (pid {pid}) still runs"
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    run_dir = tmp_path_factory.mktemp("a3c") / "run"
+    flags = ["--total-timesteps", "3000", "--eval-interval", "1000", "--run-dir", str(run_dir)]
+    result = run(*TINY, *flags, "--checkpoint-interval", "1000")
+    return run_dir, result
+
+
+def test_short_run_writes_evaluations_events_and_checkpoint(short_run):
+    run_dir, result = short_run
+    assert result.returncode == 0, result.stderr
+    rows = read_evaluations(run_dir)
+    assert list(rows[0]) == ["global_step", "wall_time_s", "mean_return", "std_return", "episodes"]
+    steps = [int(r["global_step"]) for r in rows]
+    assert steps[0] == 0 and steps[-1] >= 3000 and steps == sorted(steps)
+    assert len(rows) >= 3  # step 0, about 1000, 2000 and the final one
+    assert all(0.0 <= float(r["mean_return"]) <= 1.0 and r["episodes"] == "5" for r in rows)
+    assert list(run_dir.glob("events.out.tfevents.*"))
+    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    assert checkpoint["global_step"] == steps[-1]
+    summary = result.stdout.strip().splitlines()[-1]
+    assert summary.startswith("done: final eval") and "SPS" in summary, result.stdout
+    assert re.search(r"step [\d,]+/3,000 .*\| SPS [\d,]+ \| return .* \| ETA", result.stdout)
+
+
+def test_tensorboard_scalars(short_run):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    run_dir, _ = short_run
+    events = EventAccumulator(str(run_dir))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    expected = {"charts/SPS", "charts/episodic_return", "eval/mean_return", "losses/policy_loss",
+                "losses/value_loss", "losses/entropy", "losses/grad_norm"}  # fmt: skip
+    assert expected <= tags, tags
+
+
+def test_resume_continues_global_step(short_run, tmp_path):
+    run_dir, _ = short_run
+    old = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    before = old["global_step"]
+    copy = tmp_path / "checkpoint.pt"
+    copy.write_bytes((run_dir / "checkpoint.pt").read_bytes())
+    result = run(*TINY, "--resume", str(copy), "--total-timesteps", "5000",
+                 "--eval-interval", "1000")  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = read_evaluations(tmp_path)  # the checkpoint's folder is the default run folder
+    steps = [int(r["global_step"]) for r in rows]
+    assert steps[0] > before, "a resumed run must not start again at step 0"
+    assert steps[-1] >= 5000
+    after = torch.load(copy, weights_only=False)
+    assert after["global_step"] == steps[-1]
+    # wall time continues too: the evaluations' wall_time_s count from the first run's start
+    assert float(rows[0]["wall_time_s"]) > old["wall_time"]
+    assert after["wall_time"] >= float(rows[-2]["wall_time_s"])  # saved before the final eval
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_signal_writes_checkpoint_and_exits_zero(tmp_path, signum):
+    process, pids = start(*TINY, "--total-timesteps", "10000000", "--run-dir", str(tmp_path))
+    wait_for_progress(process)
+    # SIGINT as a terminal sends it (to the whole group); SIGTERM as `kill` does
+    if signum == signal.SIGINT:
+        os.killpg(process.pid, signum)
+    else:
+        process.send_signal(signum)
+    stdout, stderr = process.communicate(timeout=30)
+    assert process.returncode == 0, stderr
+    assert f"stopped by {signal.Signals(signum).name}" in stdout
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert checkpoint["global_step"] > 0
+    assert_all_gone(pids)
+
+
+def test_killed_worker_stops_the_run_with_an_error(tmp_path):
+    process, pids = start(*TINY, "--total-timesteps", "10000000", "--run-dir", str(tmp_path))
+    wait_for_progress(process)
+    os.kill(pids["worker 1"], signal.SIGKILL)
+    _, stderr = process.communicate(timeout=30)
+    assert process.returncode == 1
+    assert f"worker 1 (pid {pids['worker 1']}) was killed by SIGKILL" in stderr
+    assert_all_gone(pids)
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--grad-clip-mode", "sideways"], "norm"),
+        (["--optimizer", "sgd"], "rmsprop"),
+        (["--t-max", "0"], "--t-max must be >= 1"),
+        (["--learning-rate", "nan"], "--learning-rate must be >= 0"),
+        (["--env", "Nope-v0"], "unknown --env 'Nope-v0'; valid: Catch-v0"),
+        (["--resume", "/nonexistent/checkpoint.pt"], "does not exist"),
+        (["--evaluate", "/nonexistent/checkpoint.pt"], "does not exist"),
+    ],
+)
+def test_bad_flags_are_rejected(flags, message):
+    result = run(*flags, timeout=60)
+    assert result.returncode == 2
+    assert message in result.stderr, result.stderr
+
+
+def test_corrupt_checkpoint_is_rejected(tmp_path):
+    path = tmp_path / "checkpoint.pt"
+    path.write_bytes(b"\x00garbage")
+    result = run("--resume", str(path), timeout=60)
+    assert result.returncode == 2
+    assert "corrupt" in result.stderr
+
+
+def test_evaluate_mode_prints_scores(short_run):
+    run_dir, _ = short_run
+    result = run("--evaluate", str(run_dir / "checkpoint.pt"), "--eval-episodes", "3")
+    assert result.returncode == 0, result.stderr
+    assert len(re.findall(r"^episode \d: score [01]$", result.stdout, re.M)) == 3
+    assert re.search(r"mean score [\d.]+ \+- [\d.]+ over 3 episodes", result.stdout)
+
+
+def test_capture_video(tmp_path):
+    pytest.importorskip("moviepy")
+    flags = ["--total-timesteps", "500", "--eval-interval", "1000", "--capture-video"]
+    result = run(*TINY, *flags, "--run-dir", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert len(list((tmp_path / "videos").glob("*.mp4"))) >= 2  # step 0 and the final one
+
+
+def test_atari_breakout_runs(tmp_path):
+    pytest.importorskip("ale_py")
+    flags = ["--env", "BreakoutNoFrameskip-v4", "--total-timesteps", "2000", "--eval-episodes", "1"]
+    result = run(*flags, "--num-workers", "2", "--run-dir", str(tmp_path), timeout=180)
+    assert result.returncode == 0, result.stderr
+    steps = [int(r["global_step"]) for r in read_evaluations(tmp_path)]
+    assert steps[0] == 0 and steps[-1] >= 2000
