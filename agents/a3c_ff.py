@@ -118,12 +118,15 @@ def resolve_defaults(args: Args) -> Args:
     """Fill the env-dependent defaults and reject bad numbers with a clear message."""
     from catch_env.wrappers import is_atari
 
-    if args.env not in gym.registry:
+    try:
+        atari = is_atari(args.env)  # registers the ALE ids first
+    except ImportError as e:
+        raise UsageError(str(e)) from e
+    except gym.error.Error as e:
         raise UsageError(
             f"unknown --env {args.env!r}; valid: Catch-v0 or an ALE id such as "
             "BreakoutNoFrameskip-v4, PongNoFrameskip-v4, BeamRiderNoFrameskip-v4"
-        )
-    atari = is_atari(args.env)
+        ) from e
     if args.total_timesteps is None:
         args.total_timesteps = 100_000_000 if atari else 1_000_000
     if args.eval_interval is None:
