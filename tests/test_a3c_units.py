@@ -32,6 +32,15 @@ def test_n_step_returns_bootstrap_and_terminal(a3c):
     np.testing.assert_allclose(a3c.n_step_returns(rewards, 0.0, 0.5), [1.5, 1.0, 2.0])
 
 
+def test_sample_action_inverse_cdf(a3c):
+    probs = [0.2, 0.3, 0.5]
+    assert [a3c.sample_action(probs, u) for u in (0.0, 0.19, 0.21, 0.49, 0.51, 0.999)] == [
+        0, 0, 1, 1, 2, 2,
+    ]  # fmt: skip
+    assert a3c.sample_action([0.0, 1.0, 0.0], 0.0) == 1  # never an action of probability 0
+    assert a3c.sample_action([0.5, 0.5], 0.9999999999) == 1
+
+
 def test_a3c_loss_matches_hand_computation(a3c):
     log_probs = torch.tensor([[0.5, 0.5], [0.25, 0.75]]).log().requires_grad_()
     values = torch.tensor([1.0, 2.0], requires_grad=True)

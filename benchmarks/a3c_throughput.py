@@ -1,0 +1,192 @@
+"""Global env steps per second of agents/a3c_ff.py on Catch-v0, with the default worker count.
+
+    python benchmarks/a3c_throughput.py [--seconds 30] [--num-workers N] [--no-baseline]
+
+It runs a3c_ff's own training loop (evaluations included) for --seconds and reports the steps/s
+after the workers have started. For comparison it first runs a straightforward Hogwild loop of
+the same algorithm and network for as long: load_state_dict to sync, a fresh tensor per step,
+torch.optim-style per-parameter clipping and RMSprop. For context it prints the network's FLOPs
+per env step (acting forward + the step's share of the rollout's forward and backward), this
+machine's single-thread fp32 matmul GFLOP/s, and the steps/s bound they give. Other load on the
+machine lowers every number: the load average is printed before each measurement.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.multiprocessing as mp
+from torch.utils.flop_counter import FlopCounterMode
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+
+SCRIPT = Path(__file__).resolve().parents[1] / "agents" / "a3c_ff.py"
+
+
+def load_a3c():
+    spec = importlib.util.spec_from_file_location("a3c_ff", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["a3c_ff"] = module  # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+def matmul_gflops(size: int = 1024, seconds: float = 1.0) -> float:
+    """Single-thread fp32 matmul GFLOP/s, the best of a few timed rounds."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    best = 0.0
+    for _ in range(3):
+        calls, start = 0, time.perf_counter()
+        while time.perf_counter() - start < seconds / 3:
+            torch.mm(a, b)
+            calls += 1
+        best = max(best, 2 * size**3 * calls / (time.perf_counter() - start) / 1e9)
+    return best
+
+
+def flops_per_env_step(a3c, t_max: int) -> float:
+    """FLOPs of one acting forward plus 1/t_max of a t_max-step training forward and backward."""
+    args = a3c.Args()
+    model = a3c.ActorCritic(3, args)
+    params = list(model.parameters())
+    with FlopCounterMode(display=False) as act, torch.inference_mode():
+        model(torch.zeros(1, 4, 84, 84, dtype=torch.uint8))
+    with FlopCounterMode(display=False) as learn:
+        log_probs, values = model(torch.zeros(t_max, 4, 84, 84, dtype=torch.uint8))
+        torch.autograd.grad(log_probs.sum() + values.sum(), params)
+    return act.get_total_flops() + learn.get_total_flops() / t_max
+
+
+def baseline_worker(a3c, worker_id, global_model, square_avg, steps, stop, args) -> None:
+    """A straightforward Hogwild A3C worker: the same algorithm, written plainly."""
+    torch.set_num_threads(1)
+    torch.manual_seed(args.seed + worker_id)
+    env = a3c.make_env(args.env)
+    model = a3c.ActorCritic(env.action_space.n, args)
+    obs, _ = env.reset(seed=args.seed + worker_id)
+    while not stop.is_set():
+        model.load_state_dict(global_model.state_dict())
+        observations, actions, rewards, terminated = [], [], [], False
+        for _ in range(args.t_max):
+            x = torch.from_numpy(np.asarray(obs)).unsqueeze(0)
+            with torch.no_grad():
+                log_probs, _ = model(x)
+            action = torch.multinomial(log_probs.exp(), 1).item()
+            observations.append(x)
+            obs, reward, terminated, truncated, _ = env.step(action)
+            actions.append(action)
+            rewards.append(reward)
+            if terminated or truncated:
+                break
+        observations.append(torch.from_numpy(np.asarray(obs)).unsqueeze(0))
+        log_probs, values = model(torch.cat(observations))
+        n = len(rewards)
+        bootstrap = 0.0 if terminated else values[n].item()
+        returns = torch.from_numpy(a3c.n_step_returns(np.array(rewards), bootstrap, args.gamma))
+        loss = a3c.a3c_loss(log_probs[:n], torch.tensor(actions), values[:n], returns,
+                            args.ent_coef, args.vf_coef)[0]  # fmt: skip
+        model.zero_grad()
+        loss.backward()
+        lr = args.learning_rate
+        with torch.no_grad():
+            for p, gp, ms in zip(model.parameters(), global_model.parameters(), square_avg,
+                                 strict=True):  # fmt: skip
+                torch.nn.utils.clip_grad_norm_([p], args.grad_clip)
+                ms.mul_(args.rms_decay).addcmul_(p.grad, p.grad, value=1 - args.rms_decay)
+                gp.addcdiv_(p.grad, (ms + args.optim_eps).sqrt(), value=-lr)
+        steps[worker_id] += n
+        if terminated or truncated:
+            obs, _ = env.reset()
+
+
+def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> float:
+    args = a3c.resolve_defaults(a3c.Args(num_workers=num_workers))
+    global_model = a3c.ActorCritic(3, args)
+    global_model.share_memory()
+    square_avg = [torch.zeros_like(p).share_memory_() for p in global_model.parameters()]
+    steps = torch.zeros(num_workers, dtype=torch.int64).share_memory_()
+    ctx = mp.get_context("fork")
+    stop = ctx.Event()
+    workers = [
+        ctx.Process(target=baseline_worker,
+                    args=(a3c, i, global_model, square_avg, steps, stop, args), daemon=True)
+        for i in range(num_workers)
+    ]  # fmt: skip
+    for w in workers:
+        w.start()
+    time.sleep(warmup)
+    start_steps, start = int(steps.sum()), time.perf_counter()
+    time.sleep(seconds)
+    sps = (int(steps.sum()) - start_steps) / (time.perf_counter() - start)
+    stop.set()
+    for w in workers:
+        w.join(10)
+        if w.exitcode != 0:
+            raise RuntimeError(f"baseline worker exited with {w.exitcode}")
+    return sps
+
+
+def run_a3c_ff(a3c, num_workers: int, seconds: float) -> float:
+    with tempfile.TemporaryDirectory() as run_dir:
+        args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir,
+                        log_interval=max(5.0, seconds / 4))  # fmt: skip
+        args.total_timesteps = 10**9  # the time limit ends the run
+        summary = a3c.train(a3c.resolve_defaults(args))
+    return summary["sps"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seconds", type=float, default=30.0, help="time per measurement")
+    parser.add_argument("--num-workers", type=int, default=None, help="default: a3c_ff's")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the baseline loop")
+    opts = parser.parse_args()
+    if opts.seconds <= 0:
+        parser.error("--seconds must be > 0")
+    torch.set_num_threads(1)
+    a3c = load_a3c()
+    num_workers = opts.num_workers or a3c.Args().num_workers
+    if num_workers < 1:
+        parser.error("--num-workers must be >= 1")
+
+    cpu = platform.processor() or platform.machine()
+    if os.path.exists("/proc/cpuinfo"):
+        with open("/proc/cpuinfo") as f:
+            cpu = next(
+                (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu
+            )
+    print(f"machine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}; "
+          f"{num_workers} workers; {opts.seconds:g} s per measurement")  # fmt: skip
+    gflops = matmul_gflops()
+    flops = flops_per_env_step(a3c, a3c.Args().t_max)
+    bound = num_workers * gflops * 1e9 / flops
+    print(f"network: {flops / 1e6:.1f} MFLOP per env step (acting forward + 1/t_max of the "
+          f"rollout's forward and backward)")  # fmt: skip
+    print(f"matmul: {gflops:.1f} GFLOP/s per core (fp32, 1 thread) -> bound "
+          f"{bound:,.0f} steps/s with {num_workers} workers")  # fmt: skip
+
+    results = {}
+    if not opts.no_baseline:
+        print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
+        results["baseline"] = run_baseline(a3c, num_workers, opts.seconds, warmup=3.0)
+        print(f"baseline: {results['baseline']:,.0f} steps/s", flush=True)
+    print(f"load average {os.getloadavg()[0]:.2f}; a3c_ff ...", flush=True)
+    results["a3c_ff"] = run_a3c_ff(a3c, num_workers, opts.seconds)
+    line = f"a3c_ff: {results['a3c_ff']:,.0f} global env steps/s"
+    line += f" ({results['a3c_ff'] / bound:.0%} of the matmul bound"
+    if "baseline" in results:
+        line += f", {results['a3c_ff'] / results['baseline']:.2f}x the baseline"
+    print(line + ")")
+
+
+if __name__ == "__main__":
+    main()
