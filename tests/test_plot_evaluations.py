@@ -1,0 +1,32 @@
+"""agents/plot_evaluations.py draws a PNG from evaluations.csv and reports reaching a threshold."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "agents" / "plot_evaluations.py"
+HEADER = "global_step,wall_time_s,mean_return,std_return,episodes\n"
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True)
+
+
+def test_plot_writes_png_and_reports_threshold(tmp_path):
+    csv_path = tmp_path / "evaluations.csv"
+    rows = ["0,1.0,0.2,0.4,50", "50000,30.0,0.86,0.35,50", "100000,61.5,0.94,0.24,50"]
+    csv_path.write_text(HEADER + "\n".join(rows) + "\n")
+    png = tmp_path / "curve.png"
+    result = run(str(csv_path), "-o", str(png), "--threshold", "0.9")
+    assert result.returncode == 0, result.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "first >= 0.9 at step 100,000, 62 s" in result.stdout
+    assert "last 0.940 at step 100,000" in result.stdout
+
+
+def test_plot_rejects_a_file_that_is_not_evaluations_csv(tmp_path):
+    bad = tmp_path / "other.csv"
+    bad.write_text("a,b\n1,2\n")
+    result = run(str(bad), "-o", str(tmp_path / "x.png"))
+    assert result.returncode == 2
+    assert "not an evaluations.csv" in result.stderr
