@@ -281,12 +281,13 @@ def clip_gradients(grads: list[torch.Tensor], mode: str, bound: float) -> float:
     """Clip in place (thesis 6.3.1); returns the global norm before clipping."""
     norms = torch.stack(torch._foreach_norm(grads))
     global_norm = torch.linalg.vector_norm(norms)
-    if mode == "norm":
+    # scale only when a bound is exceeded: a pass over 1.3M gradients saved in most updates
+    if mode == "norm" and bool((norms > bound).any()):
         torch._foreach_mul_(grads, (bound / (norms + 1e-6)).clamp_(max=1.0).unbind())
     elif mode == "value":
         torch._foreach_clamp_min_(grads, -bound)
         torch._foreach_clamp_max_(grads, bound)
-    elif mode == "global-norm":
+    elif mode == "global-norm" and global_norm > bound:
         torch._foreach_mul_(grads, torch.clamp(bound / (global_norm + 1e-6), max=1.0))
     return global_norm.item()
 
