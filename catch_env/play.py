@@ -251,7 +251,7 @@ def play(
                 on_step(env, action, float(reward))
             episode_over = terminated or truncated
             if episode_over:
-                pass
+                stats.scores.append(score)
             window.show(env.render(), fps=fps, text=status_text())
             if max_episodes is not None and stats.episodes >= max_episodes:
                 stats.quit_reason = "max_episodes"
@@ -289,6 +289,7 @@ def _positive(kind: type) -> Callable[[str], Any]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The `catch-play` command line."""
     parser = argparse.ArgumentParser(
         prog="catch-play",
         description="Play Catch-v0 (or an Atari game) yourself. Arrow keys or WASD move, "
@@ -310,7 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """The `catch-play` command."""
+    """The `catch-play` command: parse the flags, play, print a summary line."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.list_envs:

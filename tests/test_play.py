@@ -1,0 +1,269 @@
+"""Human play (catch_env.play), driven headless with posted key events, and the examples."""
+
+from __future__ import annotations
+
+import os
+
+# Headless SDL, set before pygame opens a display: no window, no sound device.
+os.environ["SDL_VIDEODRIVER"] = "dummy"
+os.environ["SDL_AUDIODRIVER"] = "dummy"
+os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+
+import functools  # noqa: E402
+import re  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import gymnasium as gym  # noqa: E402
+import pygame  # noqa: E402
+import pytest  # noqa: E402
+
+import catch_env  # noqa: E402, F401  (registers Catch-v0)
+from catch_env import play as play_module  # noqa: E402
+from catch_env.play import build_key_map, main, play  # noqa: E402
+from catch_env.rendering import Window  # noqa: E402
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+# Far above any real frame rate, so Window.show never waits.
+FAST = 100_000
+ATARI_MEANINGS = [
+    "NOOP", "FIRE", "UP", "RIGHT", "LEFT", "DOWN", "UPRIGHT", "UPLEFT", "DOWNRIGHT",
+    "DOWNLEFT", "UPFIRE", "RIGHTFIRE", "LEFTFIRE", "DOWNFIRE", "UPRIGHTFIRE", "UPLEFTFIRE",
+    "DOWNRIGHTFIRE", "DOWNLEFTFIRE",
+]  # fmt: skip
+
+
+def post_key(key: int, down: bool = True) -> None:
+    """Queue a key press or release, as the keyboard would."""
+    event_type = pygame.KEYDOWN if down else pygame.KEYUP
+    pygame.event.post(pygame.event.Event(event_type, key=key, mod=0, unicode="", scancode=0))
+
+
+def post_before_play(*events: pygame.event.Event) -> None:
+    """Queue events before play() opens its window (the queue needs the display up)."""
+    pygame.display.init()
+    pygame.event.clear()
+    for event in events:
+        pygame.event.post(event)
+
+
+def key_down(key: int) -> pygame.event.Event:
+    return pygame.event.Event(pygame.KEYDOWN, key=key, mod=0, unicode="", scancode=0)
+
+
+def start_paddle(seed: int) -> int:
+    env = gym.make("Catch-v0")
+    env.reset(seed=seed)
+    return env.unwrapped.paddle
+
+
+# A seed whose paddle starts far enough from both walls for three moves of 2 cells.
+MID_SEED = next(seed for seed in range(100) if 8 <= start_paddle(seed) <= 15)
+
+
+@pytest.fixture(autouse=True)
+def _no_display_left_open():
+    pygame.display.quit()  # in case another test file left one open
+    yield
+    # Each play() closes its window; a display left open would leak events into the next.
+    assert not pygame.display.get_init()
+
+
+@pytest.mark.parametrize(
+    ("key", "direction"),
+    [(pygame.K_LEFT, -1), (pygame.K_a, -1), (pygame.K_RIGHT, 1), (pygame.K_d, 1)],
+)
+def test_held_key_moves_the_paddle_until_released(key: int, direction: int) -> None:
+    paddles, actions = [], []
+
+    def on_step(env: gym.Env, action: int, reward: float) -> None:
+        paddles.append(env.unwrapped.paddle)
+        actions.append(action)
+        if len(paddles) == 2:
+            post_key(key, down=False)
+
+    post_before_play(key_down(key))
+    stats = play(fps=FAST, seed=MID_SEED, max_steps=3, on_step=on_step)
+
+    start = start_paddle(MID_SEED)
+    # Two steps with the key held (2 cells each), then the release makes it NOOP.
+    assert paddles == [start + 2 * direction, start + 4 * direction, start + 4 * direction]
+    assert actions == [1 if direction < 0 else 2] * 2 + [0]
+    assert stats.steps == 3
+    assert stats.quit_reason == "max_steps"
+
+
+def test_key_tapped_between_frames_still_acts_once() -> None:
+    actions = []
+    post_before_play(key_down(pygame.K_RIGHT))
+    pygame.event.post(pygame.event.Event(pygame.KEYUP, key=pygame.K_RIGHT, mod=0))
+    play(fps=FAST, seed=MID_SEED, max_steps=2, on_step=lambda env, a, r: actions.append(a))
+    assert actions == [2, 0]
+
+
+def test_episodes_are_scored_and_shown(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A key-pressing bot that follows the ball scores; idle play scores less."""
+    shown_texts = []
+    original_show = Window.show
+
+    def recording_show(self, frame, fps=None, text=None):
+        shown_texts.append(text)
+        original_show(self, frame, fps=fps, text=text)
+
+    monkeypatch.setattr(Window, "show", recording_show)
+
+    def follow_ball(env: gym.Env, action: int, reward: float) -> None:
+        game = env.unwrapped
+        target = game.ball_col + game.ball_vx
+        post_key(pygame.K_LEFT, down=target < game.paddle)
+        post_key(pygame.K_RIGHT, down=target > game.paddle)
+
+    pygame.display.init()
+    pygame.event.clear()
+    # max_steps only stops a broken play() from running forever.
+    bot = play(fps=FAST, seed=3, max_episodes=4, max_steps=200, on_step=follow_ball)
+    bot_texts = list(shown_texts)
+    pygame.display.init()
+    pygame.event.clear()
+    idle = play(fps=FAST, seed=3, max_episodes=4, max_steps=200)
+
+    for stats in (bot, idle):
+        # Catch episodes last 15 steps and pay 0 or 1.
+        assert stats.episodes == 4 and stats.steps == 60
+        assert set(stats.scores) <= {0.0, 1.0}
+        assert stats.quit_reason == "max_episodes"
+    assert sum(bot.scores) == 4 > sum(idle.scores)
+    assert bot_texts[0] == "episode 1   score 0   total 0"
+    assert "episode 2   score 0   total 1" in bot_texts
+    # The last frame shown: episode 4 just finished, caught, 4 caught in all.
+    assert bot_texts[-1] == "episode 4   score 1   total 4"
+
+
+def test_escape_quits_before_any_step() -> None:
+    post_before_play(key_down(pygame.K_ESCAPE))
+    # max_steps only stops a broken play() from running forever.
+    stats = play(fps=FAST, seed=0, max_steps=50)
+    assert stats.quit_reason == "escape"
+    assert stats.steps == 0 and stats.episodes == 0
+
+
+def test_escape_mid_game_quits_after_that_step() -> None:
+    def press_escape_at_step_5(env: gym.Env, action: int, reward: float) -> None:
+        if env.unwrapped.ball_row == 4 + 5:
+            post_key(pygame.K_ESCAPE)
+
+    pygame.display.init()
+    pygame.event.clear()
+    stats = play(fps=FAST, seed=0, max_steps=50, on_step=press_escape_at_step_5)
+    assert stats.quit_reason == "escape"
+    assert stats.steps == 5
+
+
+def test_closing_the_window_quits() -> None:
+    post_before_play(pygame.event.Event(pygame.QUIT))
+    stats = play(fps=FAST, seed=0, max_steps=50)
+    assert stats.quit_reason == "window closed"
+    assert stats.steps == 0
+
+
+def test_atari_game_plays_with_its_own_key_map() -> None:
+    pytest.importorskip("ale_py")
+    actions = []
+    post_before_play(key_down(pygame.K_SPACE), key_down(pygame.K_LEFT))
+    stats = play(
+        "BreakoutNoFrameskip-v4",
+        fps=FAST,
+        seed=0,
+        max_steps=5,
+        on_step=lambda env, action, reward: actions.append(action),
+    )
+    # Breakout has NOOP FIRE RIGHT LEFT and no LEFTFIRE: space + left is LEFT.
+    assert actions == [3] * 5
+    assert stats.steps == 5
+
+
+def test_key_map_matches_combinations_and_falls_back() -> None:
+    atari = build_key_map(ATARI_MEANINGS)
+    assert atari[frozenset()] == ATARI_MEANINGS.index("NOOP")
+    assert atari[frozenset({"UP", "RIGHT"})] == ATARI_MEANINGS.index("UPRIGHT")
+    assert atari[frozenset({"DOWN", "LEFT", "FIRE"})] == ATARI_MEANINGS.index("DOWNLEFTFIRE")
+    # Opposite directions cancel.
+    assert atari[frozenset({"LEFT", "RIGHT", "FIRE"})] == ATARI_MEANINGS.index("FIRE")
+    catch = build_key_map(["NOOP", "LEFT", "RIGHT"])
+    assert catch[frozenset({"LEFT"})] == 1 and catch[frozenset({"RIGHT"})] == 2
+    # Buttons Catch lacks are ignored rather than blocking the move.
+    assert catch[frozenset({"UP", "LEFT", "FIRE"})] == 1
+    assert catch[frozenset({"FIRE"})] == 0
+    assert len(catch) == 2**5
+
+
+def test_main_plays_and_prints_a_summary(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A step limit main() lacks, so a broken episode count fails instead of hanging.
+    monkeypatch.setattr(play_module, "play", functools.partial(play, max_steps=100))
+    main(["--fps", str(FAST), "--seed", "0", "--episodes", "2", "--zoom", "2"])
+    out = capsys.readouterr().out
+    assert "Catch-v0: 2 episode(s)" in out and "30 steps" in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--env", "NoSuchGame-v0"], "catch-play --list-envs"),
+        (["--env", "CartPole-v1"], "no named discrete actions"),
+        (["--fps", "-5"], "argument --fps: must be positive"),
+        (["--zoom", "1.5"], "argument --zoom: expected an integer"),
+        (["--episodes", "0"], "argument --episodes: must be positive"),
+    ],
+)
+def test_bad_flags_exit_with_a_clear_message(
+    argv: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_unknown_env_id_in_play_raises_value_error() -> None:
+    with pytest.raises(ValueError, match="NoSuchGame-v0.*--list-envs"):
+        play("NoSuchGame-v0")
+
+
+def test_list_envs_names_catch_and_atari(capsys: pytest.CaptureFixture[str]) -> None:
+    main(["--list-envs"])
+    ids = capsys.readouterr().out.split()
+    assert "Catch-v0" in ids
+    if play_module.importlib.util.find_spec("ale_py"):
+        assert "BreakoutNoFrameskip-v4" in ids
+
+
+def run_example(*args: str) -> str:
+    result = subprocess.run(
+        [sys.executable, *args], capture_output=True, text=True, timeout=60, check=True
+    )
+    return result.stdout
+
+
+def test_random_agent_example_catches_about_one_in_five() -> None:
+    out = run_example(str(EXAMPLES / "random_agent.py"), "--episodes", "400", "--seed", "1")
+    caught, episodes, rate = re.search(
+        r"(\d+)/(\d+) balls caught: catch rate ([\d.]+)", out
+    ).groups()
+    assert int(episodes) == 400
+    assert float(rate) == pytest.approx(int(caught) / 400, abs=1e-3)
+    assert 0.12 < float(rate) < 0.3
+
+
+def test_vector_env_example_counts_episodes_with_next_step_autoreset() -> None:
+    out = run_example(str(EXAMPLES / "vector_env.py"), "--num-envs", "8", "--steps", "100")
+    # Each game ends at steps 15, 31, ..., 95 (15 played steps, then 1 reset step):
+    # 6 episodes and 6 reset steps per env.
+    assert "8 envs x 100 steps: 48 episodes" in out
+    assert f"{8 * 100 - 48} game steps" in out
+    catches, rate = re.search(r"(\d+) catches \(catch rate ([\d.]+)\)", out).groups()
+    assert 0 <= int(catches) <= 48 and float(rate) == pytest.approx(int(catches) / 48, abs=1e-3)
+    assert re.search(r"[\d,]+ env steps/s", out)
