@@ -27,27 +27,27 @@ ATARI_ENTRY_POINT = "ale_py.env:AtariEnv"
 _ale_registered = False
 
 
-def _register_ale() -> None:
-    """Register the ALE ids (BreakoutNoFrameskip-v4, ...) if ale-py is installed."""
+def _register_ale() -> bool:
+    """Register the ALE ids (BreakoutNoFrameskip-v4, ...); False if ale-py is not installed."""
     global _ale_registered
-    if _ale_registered:
-        return
-    try:
-        import ale_py
-    except ImportError:
-        return
-    gym.register_envs(ale_py)
-    _ale_registered = True
+    if not _ale_registered:
+        try:
+            import ale_py
+        except ImportError:
+            return False
+        gym.register_envs(ale_py)
+        _ale_registered = True
+    return True
 
 
 def is_atari(env_id: str) -> bool:
     """Whether `env_id` is an ALE game (registering the ALE ids first, if ale-py is here)."""
-    _register_ale()
+    ale_installed = _register_ale()
     try:
         spec = gym.spec(env_id)
     except gym.error.Error:
         # An ALE-looking id with no ale-py installed: say what to install.
-        if "NoFrameskip" in env_id or env_id.startswith("ALE/"):
+        if not ale_installed and ("NoFrameskip" in env_id or env_id.startswith("ALE/")):
             raise ImportError(
                 f"{env_id} is an Atari game; install ale-py: pip install 'catch-env[atari]'"
             ) from None
