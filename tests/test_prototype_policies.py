@@ -1,0 +1,415 @@
+"""Tests of agents/a3c_lpq.py and agents/a3c_glpq.py (thesis chapter 7, appendix C): the
+distances, the LPQ and GLPQ heads and the temperature against hand-computed values, then both
+scripts end to end on tiny budgets."""
+
+import csv
+import importlib.util
+import itertools
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["--num-workers", "2", "--eval-episodes", "2", "--log-interval", "1"]
+
+
+def load(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "agents" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def lpq():
+    return load("a3c_lpq")
+
+
+@pytest.fixture(scope="module")
+def glpq():
+    return load("a3c_glpq")
+
+
+def both(lpq, glpq):
+    return {"lpq": lpq, "glpq": glpq}
+
+
+# ---------------------------------------------------------------------------------------------
+# Distances (thesis 7.2.1)
+# ---------------------------------------------------------------------------------------------
+H = torch.tensor([[1.0, 2.0, 2.0]])  # |h| = 3, mean 5/3
+W = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 2.0, 3.0]])  # the middle one is zero
+# by hand: h - w = [0, 2, 2], [1, 2, 2], [0, 0, -1]
+EXPECTED = {
+    "squared-euclidean": [8.0, 9.0, 1.0],
+    "euclidean": [math.sqrt(8), 3.0, 1.0],
+    "manhattan": [4.0, 5.0, 1.0],
+    # 1 - h.w / (|h| |w|); the zero prototype has no direction: distance 1
+    "cosine": [1 - 1 / 3, 1.0, 1 - 11 / (3 * math.sqrt(14))],
+    # centred: h [-2, 1, 1] / 3, w1 [2, -1, -1] / 3 (r = -1), w2 constant (no direction),
+    # w3 [-1, 0, 1]: r = 1 / (sqrt(6) / 3 * sqrt(2)) = sqrt(3) / 2
+    "pearson": [2.0, 1.0, 1 - math.sqrt(3) / 2],
+    "inverse-squared-euclidean": [-1 / 9, -1 / 10, -1 / 2],
+}
+
+
+@pytest.mark.parametrize("distance", list(EXPECTED))
+def test_distances_by_hand(lpq, glpq, distance):
+    got = lpq.prototype_distances(H, W, distance)
+    np.testing.assert_allclose(got.numpy(), [EXPECTED[distance]], rtol=1e-6, atol=1e-7)
+    if distance != "inverse-squared-euclidean":  # GLPQ needs d >= 0: it offers the others
+        torch.testing.assert_close(glpq.prototype_distances(H, W, distance), got)
+
+
+@pytest.mark.parametrize("distance", ["cosine", "pearson"])
+def test_zero_and_constant_vectors_give_finite_distances_and_gradients(lpq, distance):
+    features = torch.tensor([[0.0, 0.0, 0.0], [2.0, 2.0, 2.0]], requires_grad=True)
+    prototypes = torch.tensor([[0.0, 0.0, 0.0], [1.0, -2.0, 0.5]], requires_grad=True)
+    d = lpq.prototype_distances(features, prototypes, distance)
+    expected = torch.ones(2, 2)  # zero vectors have no direction, nor constant ones for Pearson
+    if distance == "cosine":  # [2, 2, 2] . [1, -2, 0.5] = -1; |.| = sqrt(12), sqrt(5.25)
+        expected[1, 1] = 1 + 1 / (math.sqrt(12) * math.sqrt(5.25))
+    np.testing.assert_allclose(d.detach().numpy(), expected.numpy(), rtol=1e-6)
+    d.sum().backward()
+    assert torch.isfinite(features.grad).all() and torch.isfinite(prototypes.grad).all()
+
+
+def test_euclidean_gradient_is_finite_at_zero_distance(lpq):
+    h = torch.tensor([[1.0, 2.0]], requires_grad=True)
+    d = lpq.prototype_distances(h, h.detach().clone(), "euclidean")
+    assert d.item() == pytest.approx(1e-6)  # sqrt of the floor SQRT_EPS
+    d.sum().backward()
+    assert torch.isfinite(h.grad).all()
+
+
+# ---------------------------------------------------------------------------------------------
+# The heads: pi is a distribution; LPQ generalises softmax; Theorem 1
+# ---------------------------------------------------------------------------------------------
+def configurations(module, name):
+    """Every distance, competition size (1, 3, all of 4) and temperature; the two prototype
+    initialisations take turns."""
+    distances = list(EXPECTED) if name == "lpq" else list(EXPECTED)[:-1]
+    temperatures = [None] if name == "lpq" else ["fixed", "cold", "hot", "searing", "trainable"]
+    grid = itertools.product(distances, [1, 3, None], temperatures)
+    for i, (distance, k, temperature) in enumerate(grid):
+        extra = {} if temperature is None else {"temperature": temperature, "tau": 2.0}
+        init = ["uniform", "uniform-clipped"][i % 2]
+        yield module.Args(prototypes_per_action=4, distance=distance, competition_size=k,
+                          prototype_init=init, **extra)  # fmt: skip
+
+
+@pytest.mark.parametrize("name", ["lpq", "glpq"])
+def test_pi_is_a_distribution_with_finite_gradients_for_every_configuration(lpq, glpq, name):
+    module = both(lpq, glpq)[name]
+    torch.manual_seed(0)
+    # ReLU features, one of them all zero and one constant (no direction for cosine, Pearson)
+    hidden = torch.rand(5, 256) * 10
+    hidden[0], hidden[1] = 0.0, 3.0
+    hidden.requires_grad_()
+    count = 0
+    for args in configurations(module, name):
+        model = module.ActorCritic(4, args)
+        for progress in (0.0, 0.5, 1.0):
+            if name == "glpq":
+                model.set_progress(progress)
+            log_probs = model.log_policy(hidden)
+            assert log_probs.shape == (5, 4)
+            probs = log_probs.exp()
+            assert (probs >= 0).all() and torch.isfinite(log_probs).all(), args
+            torch.testing.assert_close(probs.sum(-1), torch.ones(5))
+        entropy = -(probs * log_probs).sum()
+        head = [
+            p for name, p in model.named_parameters() if not name.startswith(("torso", "value"))
+        ]
+        grads = torch.autograd.grad(log_probs[:, 1].sum() + entropy, [hidden, *head])
+        assert all(torch.isfinite(g).all() for g in grads), args
+        count += 1
+    assert count == (18 if name == "lpq" else 75)
+
+
+@pytest.mark.parametrize("name", ["lpq", "glpq"])
+def test_network_forward_contract(lpq, glpq, name):
+    module = both(lpq, glpq)[name]
+    model = module.ActorCritic(6, module.Args())
+    obs = torch.randint(0, 256, (3, 4, 84, 84), dtype=torch.uint8)
+    log_probs, values = model(obs)
+    assert log_probs.shape == (3, 6) and values.shape == (3,)
+    x = obs.to(torch.float32, memory_format=torch.channels_last)  # as forward does
+    torch.testing.assert_close(log_probs, model.log_policy(model.torso(x)))
+    assert model.prototypes.shape == (6 * 16, 256)
+    assert model.prototypes.abs().max() <= 1 / 16  # U(-1/16, 1/16)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    d=st.lists(st.floats(0.0, 1e6), min_size=12, max_size=12),
+    k=st.integers(1, 4),
+    tau=st.floats(0.01, 50.0),
+)
+def test_heads_on_extreme_distances(lpq, glpq, d, k, tau):
+    distances = torch.tensor(d, dtype=torch.float64).view(1, 3, 4)
+    for log_probs in (lpq.lpq_log_policy(distances, k), glpq.glpq_log_policy(distances, tau, k)):
+        assert torch.isfinite(log_probs).all()
+        assert log_probs.exp().sum().item() == pytest.approx(1.0, abs=1e-9)
+
+
+def test_lpq_with_one_prototype_per_action_and_dot_distance_is_softmax(lpq):
+    # thesis 7.2.2: P = 1 and d(h, w) = -(w.h + b) give the softmax head of eq. 7.4
+    torch.manual_seed(0)
+    h, weight, bias = torch.randn(5, 256), torch.randn(6, 256), torch.randn(6)
+    distances = -(h @ weight.T + bias)
+    log_probs = lpq.lpq_log_policy(distances.view(5, 6, 1), k=1)
+    torch.testing.assert_close(log_probs, F.log_softmax(h @ weight.T + bias, dim=-1))
+
+
+def test_lpq_by_hand(lpq):
+    # eq. 7.9 with A = 2, P = 2: pi(0) = (e^-1 + e^-2) / (e^-1 + e^-2 + e^-3 + e^-0.5)
+    distances = torch.tensor([[[1.0, 2.0], [3.0, 0.5]]])
+    e = np.exp(-np.array([1.0, 2.0, 3.0, 0.5]))
+    expected = np.array([e[0] + e[1], e[2] + e[3]]) / e.sum()
+    np.testing.assert_allclose(lpq.lpq_log_policy(distances, 2).exp().numpy(), [expected])
+    # k = 1 (eq. 7.11): only the nearest of each action competes, e^-1 against e^-0.5
+    near = np.array([e[0], e[3]]) / (e[0] + e[3])
+    np.testing.assert_allclose(lpq.lpq_log_policy(distances, 1).exp().numpy(), [near])
+
+
+def test_glpq_by_hand(glpq):
+    # eq. 7.7: action 0 (d 1, 2) sees d_- = 0.5, action 1 (d 3, 0.5) sees d_- = 1
+    distances = torch.tensor([[[1.0, 2.0], [3.0, 0.5]]])
+    mu = np.array([(0.5 - 1) / 1.5, (0.5 - 2) / 2.5, (1 - 3) / 4, (1 - 0.5) / 1.5])
+    np.testing.assert_allclose(glpq.relative_distances(distances).numpy().ravel(), mu, rtol=1e-6)
+    e = np.exp(2.0 * mu)  # eq. 7.10 with tau = 2
+    expected = np.array([e[0] + e[1], e[2] + e[3]]) / e.sum()
+    np.testing.assert_allclose(glpq.glpq_log_policy(distances, 2.0, 2).exp().numpy(), [expected])
+    near = np.array([e[0], e[3]]) / (e[0] + e[3])  # k = 1
+    np.testing.assert_allclose(glpq.glpq_log_policy(distances, 2.0, 1).exp().numpy(), [near])
+
+
+def theorem_1_bound(tau: float, num_actions: int) -> float:
+    return math.exp(2 * tau) / (math.exp(2 * tau) + num_actions - 1)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    d=st.lists(st.floats(0.0, 1e4), min_size=12, max_size=12),
+    k=st.integers(1, 3),
+    tau=st.floats(0.01, 20.0),
+)
+def test_theorem_1_glpq_never_exceeds_its_bound(glpq, d, k, tau):
+    distances = torch.tensor(d, dtype=torch.float64).view(1, 4, 3)
+    pi = glpq.glpq_log_policy(distances, tau, k).exp()
+    assert pi.max().item() <= theorem_1_bound(tau, 4) * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("distance", ["squared-euclidean", "euclidean", "manhattan", "cosine"])
+@pytest.mark.parametrize(("tau", "k"), [(1.0, 3), (3.02, 3), (0.5, 2)])
+def test_theorem_1_bound_is_reached_when_an_actions_prototypes_equal_h(glpq, distance, tau, k):
+    torch.manual_seed(0)
+    h = torch.rand(1, 8) + 0.1
+    prototypes = torch.rand(4 * 3, 8)
+    prototypes[3:6] = h  # every prototype of action 1
+    distances = glpq.prototype_distances(h, prototypes, distance).view(1, 4, 3)
+    pi = glpq.glpq_log_policy(distances, tau, k).exp()
+    assert pi[0, 1].item() == pytest.approx(theorem_1_bound(tau, 4), rel=1e-5)
+
+
+# ---------------------------------------------------------------------------------------------
+# Prototype gradients (appendix C): attraction for a positive advantage, repulsion otherwise
+# ---------------------------------------------------------------------------------------------
+def policy_gradient_case(module, head: str, advantage: float):
+    """A3C's policy loss -log pi(a) * advantage for one state, A = 3, P = 2, squared Euclidean;
+    returns h, the prototypes, their loss gradients, the distances and pi's pieces."""
+    torch.manual_seed(3)
+    h = torch.rand(1, 5, dtype=torch.float64)
+    prototypes = torch.rand(6, 5, dtype=torch.float64, requires_grad=True)
+    distances = module.prototype_distances(h, prototypes, "squared-euclidean").view(1, 3, 2)
+    if head == "lpq":
+        log_probs = module.lpq_log_policy(distances, 2)
+    else:
+        log_probs = module.glpq_log_policy(distances, 2.0, 2)
+    action = 0
+    loss = -log_probs[0, action] * advantage
+    (grad,) = torch.autograd.grad(loss, prototypes)
+    return h[0], prototypes.detach(), grad, distances.detach()[0], action
+
+
+@pytest.mark.parametrize("head", ["lpq", "glpq"])
+@pytest.mark.parametrize("advantage", [1.5, -0.7])
+def test_prototype_gradient_attracts_or_repels_by_the_advantages_sign(lpq, glpq, head, advantage):
+    h, prototypes, grad, _, action = policy_gradient_case(both(lpq, glpq)[head], head, advantage)
+    step = -grad  # the direction gradient descent moves each prototype
+    for i, w in enumerate(prototypes):
+        towards_h = h - w
+        cosine = torch.dot(step[i], towards_h) / (step[i].norm() * towards_h.norm())
+        # (C.5, C.11) the taken action's prototypes, (C.15, C.18) the others'
+        expected = np.sign(advantage) * (1.0 if i // 2 == action else -1.0)
+        assert cosine.item() == pytest.approx(expected, abs=1e-9), (i, cosine)
+
+
+def test_glpq_prototype_gradients_match_appendix_c(glpq):
+    h, prototypes, grad, distances, action = policy_gradient_case(glpq, "glpq", 1.0)
+    tau = 2.0
+    mu = glpq.relative_distances(distances[None])[0]
+    e = torch.exp(tau * mu)  # (A, P)
+    # the setup: action 0's far prototype is not the nearest, action 1's far one neither
+    near = distances.argmin(-1)
+    far_own, far_other = 1 - near[0].item(), 1 - near[1].item()
+    d_minus = [min(distances[b].min() for b in range(3) if b != a) for a in range(3)]
+    # (C.5): d log pi / d w_k = tau 4 d_- / (d_k + d_-)^2 (h - w_k) (P(k | a) - P(k))
+    k = far_own
+    d_k = distances[0, k]
+    c5 = tau * 4 * d_minus[0] / (d_k + d_minus[0]) ** 2 * (h - prototypes[k])
+    c5 = c5 * (e[0, k] / e[0].sum() - e[0, k] / e.sum())
+    torch.testing.assert_close(-grad[k], c5)  # the loss is -log pi, advantage 1
+    # (C.15): d log pi / d w_l = -tau 4 d_- / (d_l + d_-)^2 (h - w_l) P(l), d_- of l's action
+    row = 2 + far_other
+    d_l = distances[1, far_other]
+    c15 = -tau * 4 * d_minus[1] / (d_l + d_minus[1]) ** 2 * (h - prototypes[row])
+    c15 = c15 * e[1, far_other] / e.sum()
+    torch.testing.assert_close(-grad[row], c15)
+
+
+def test_lpq_prototype_gradients_are_rslvq(lpq):
+    # with mu = -d: d log pi / d w_k = 2 (h - w_k) (P(k | a) - P(k)) for a's prototypes and
+    # -2 (h - w_l) P(l) for the others (Seo and Obermayer 2003; thesis 7.1.2)
+    h, prototypes, grad, distances, action = policy_gradient_case(lpq, "lpq", 1.0)
+    e = torch.exp(-distances).flatten()
+    own = torch.zeros(6, dtype=torch.bool)
+    own[2 * action : 2 * action + 2] = True
+    p_all = e / e.sum()
+    p_own = torch.where(own, e / e[own].sum(), 0.0)
+    expected = 2 * (h - prototypes) * (p_own - p_all)[:, None]
+    torch.testing.assert_close(-grad, expected)
+
+
+# ---------------------------------------------------------------------------------------------
+# Temperature (thesis 7.2.4)
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("temperature", "start", "end"),
+    # the notes: cold on Catch tau 1.45 -> 2.64, hot 3.02 -> 4.22; searing by hand:
+    # 0.5 ln(0.95 * 47 / 0.05) = 3.397, 0.5 ln(0.999 * 47 / 0.001) = 5.378
+    [("cold", 1.45, 2.64), ("hot", 3.02, 4.22), ("searing", 3.397, 5.378)],
+)
+def test_temperature_schedules_on_catch(glpq, temperature, start, end):
+    model = glpq.ActorCritic(3, glpq.Args(temperature=temperature))  # 3 actions, 16 each
+    assert model.tau() == pytest.approx(start, abs=0.005)
+    model.set_progress(1.0)
+    assert model.tau() == pytest.approx(end, abs=0.005)
+    assert model.policy_loss_scale() == pytest.approx(1 / end, abs=1e-3)
+    model.set_progress(2.0)  # the final evaluation sees T >= T_max: p stays at pN
+    assert model.tau() == pytest.approx(end, abs=0.005)
+    # half way p is the mean of p0 and pN
+    model.set_progress(0.5)
+    p = {"cold": 0.945, "hot": 0.945, "searing": 0.9745}[temperature]
+    n = 3 if temperature == "cold" else 48
+    assert model.tau() == pytest.approx(0.5 * math.log(p * (n - 1) / (1 - p)), rel=1e-9)
+
+
+def test_cold_temperature_makes_p_the_largest_policy_value(glpq):
+    # Corollary 1: with tau of eq. 7.17 the bound of Theorem 1 is p
+    for p, num_actions in [(0.9, 3), (0.99, 3), (0.5, 18)]:
+        assert theorem_1_bound(glpq.scheduled_tau(p, num_actions), num_actions) == pytest.approx(p)
+
+
+def test_competition_size_sets_the_hot_temperature(glpq):
+    model = glpq.ActorCritic(3, glpq.Args(temperature="hot", competition_size=4, p_start=0.8))
+    assert model.tau() == pytest.approx(0.5 * math.log(0.8 * 11 / 0.2))  # n = k |A| = 12
+
+
+def test_fixed_and_trainable_temperature_and_the_loss_correction(glpq):
+    fixed = glpq.ActorCritic(3, glpq.Args(temperature="fixed", tau=1.0))
+    assert fixed.tau() == 1.0 and fixed.policy_loss_scale() == 1.0
+    assert "log_tau" not in dict(fixed.named_parameters())
+    off = glpq.ActorCritic(3, glpq.Args(tau_loss_correction=False))
+    assert off.tau() > 3 and off.policy_loss_scale() == 1.0
+    trainable = glpq.ActorCritic(3, glpq.Args(temperature="trainable", tau=2.0))
+    assert trainable.tau().item() == pytest.approx(2.0)
+    assert trainable.policy_loss_scale() == pytest.approx(0.5)
+    log_probs, _ = trainable(torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8))
+    (grad,) = torch.autograd.grad(log_probs[:, 0].sum(), [trainable.log_tau])
+    assert torch.isfinite(grad) and grad.item() != 0.0
+
+
+@pytest.mark.parametrize(
+    ("name", "flags"),
+    [
+        ("lpq", {"competition_size": 17}),
+        ("lpq", {"competition_size": 0}),
+        ("lpq", {"prototypes_per_action": 0}),
+        ("lpq", {"prototype_init_bound": 0.0}),
+        ("glpq", {"temperature": "fixed", "tau": 0.0}),
+        ("glpq", {"temperature": "cold", "p_start": 0.3}),  # tau <= 0 for p <= 1/|A|
+        ("glpq", {"temperature": "hot", "p_end": 1.0}),
+    ],
+)
+def test_bad_head_flags_are_usage_errors(lpq, glpq, name, flags):
+    module = both(lpq, glpq)[name]
+    with pytest.raises(module.UsageError):
+        module.ActorCritic(3, module.Args(**flags))
+
+
+# ---------------------------------------------------------------------------------------------
+# End to end, tiny budgets (the flags of tests/test_a3c_ff.py)
+# ---------------------------------------------------------------------------------------------
+def run(name: str, *flags: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(ROOT / "agents" / f"{name}.py"), *flags],
+        capture_output=True, text=True, timeout=timeout, cwd=ROOT,
+    )  # fmt: skip
+
+
+def evaluation_steps(run_dir: Path) -> list[int]:
+    with open(run_dir / "evaluations.csv") as f:
+        return [int(row["global_step"]) for row in csv.DictReader(f)]
+
+
+@pytest.mark.parametrize(
+    ("name", "flags"),
+    [("a3c_lpq", []), ("a3c_glpq", []), ("a3c_glpq", ["--temperature", "trainable"])],
+)
+def test_catch_end_to_end(tmp_path, name, flags):
+    budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
+    result = run(name, *TINY, *budget, *flags)
+    assert result.returncode == 0, result.stderr
+    steps = evaluation_steps(tmp_path)
+    assert steps[0] == 0 and steps[-1] >= 2000
+    assert result.stdout.strip().splitlines()[-1].startswith("done: final eval")
+    if flags:
+        return
+    # GLPQ's evaluate mode sets the temperature from the checkpoint's step (a diff from FF)
+    checkpoint = tmp_path / "checkpoint.pt"
+    if name == "a3c_glpq":
+        result = run(name, "--evaluate", str(checkpoint), "--eval-episodes", "2")
+        assert result.returncode == 0, result.stderr
+        assert "over 2 episodes" in result.stdout
+    # the head's flags are part of the network: a different one cannot resume it
+    result = run(name, "--resume", str(checkpoint), "--distance", "manhattan")
+    assert result.returncode == 2 and "--distance squared-euclidean" in result.stderr
+
+
+@pytest.mark.parametrize("name", ["a3c_lpq", "a3c_glpq"])
+def test_atari_breakout_runs(tmp_path, name):
+    pytest.importorskip("ale_py")
+    flags = ["--env", "BreakoutNoFrameskip-v4", "--total-timesteps", "2000", "--eval-episodes", "1"]
+    result = run(name, *flags, "--num-workers", "2", "--run-dir", str(tmp_path), timeout=180)
+    assert result.returncode == 0, result.stderr
+    steps = evaluation_steps(tmp_path)
+    assert steps[0] == 0 and steps[-1] >= 2000
+
+
+def test_glpq_rejects_the_negative_distance(glpq, capsys):
+    tyro = pytest.importorskip("tyro")
+    with pytest.raises(SystemExit) as exit_info:
+        tyro.cli(glpq.Args, args=["--distance", "inverse-squared-euclidean"])
+    assert exit_info.value.code == 2
+    tyro.cli(glpq.Args, args=["--distance", "manhattan"])  # while the others parse
