@@ -1,0 +1,961 @@
+# A3C LWS: A3C FF with local weight sharing layers in place of its convolutions.
+# Thesis "Deep Reinforcement Learning of Video Games", section 6.1 (eqs. 6.1, 6.2); the rest is
+# a copy of a3c_ff.py: `diff agents/a3c_ff.py agents/a3c_lws.py` shows the network and its flags.
+#
+# Processes: the main process owns the shared (global) network and optimizer statistics, logs,
+# checkpoints and watches the others; N workers act and learn Hogwild-style (no locks); one
+# evaluator process plays the evaluation episodes without stopping the workers.
+import csv
+import ctypes
+import math
+import os
+import random
+import signal
+import sys
+import time
+import traceback
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.multiprocessing as mp
+import torch.nn as nn
+import torch.nn.functional as F
+import tyro
+
+CHECKPOINT_FORMAT = "a3c-checkpoint-v1"
+
+
+class UsageError(Exception):
+    """A bad flag, or a missing, corrupt or incompatible checkpoint."""
+
+
+def default_num_workers() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+@dataclass
+class Args:
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment (part of the run name)"""
+    seed: int = 1
+    """seed of the experiment; worker i uses seed + i, the evaluator seed + num_workers"""
+    env: str = "Catch-v0"
+    """the Gymnasium id: Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4"""
+    total_timesteps: int | None = None
+    """total global env steps T_max (default: 1e6 for Catch, 1e8 for ALE ids)"""
+    num_workers: int = default_num_workers()
+    """the number of actor-learner processes (default: the number of CPU cores)"""
+    time_limit: float | None = None
+    """stop training after this many seconds of wall time, as if T_max was reached"""
+
+    # Algorithm (thesis Table 5.1)
+    learning_rate: float = 7e-4
+    """the learning rate eta"""
+    anneal_lr: bool = True
+    """anneal the learning rate linearly to 0 at T_max (by the shared global step)"""
+    t_max: int = 20
+    """the rollout length: steps per update, fewer when the episode ends"""
+    gamma: float = 0.99
+    """the discount factor gamma"""
+    ent_coef: float = 0.01
+    """the entropy factor beta"""
+    vf_coef: float = 0.5
+    """the value loss factor lambda_V (thesis 6.4.1); the value loss is vf_coef * 0.5 * (G - V)^2"""
+
+    # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
+    optimizer: Literal["rmsprop", "adam"] = "rmsprop"
+    """the shared optimizer; its statistics live in shared memory and are updated without locks"""
+    rms_decay: float = 0.99
+    """RMSprop decay rho of the mean square (also Adam's beta2)"""
+    adam_beta1: float = 0.9
+    """Adam's first-moment decay beta1"""
+    optim_eps: float = 0.1
+    """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
+    grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
+    """gradient clipping: per-tensor norm, per-value, global norm (thesis 6.3.1), or none"""
+    grad_clip: float | None = None
+    """the clipping bound (default: 40 for norm and value, c_g = 25 for global-norm)"""
+
+    # Network (thesis 5.2.1 and chapter 6)
+    activation: Literal["relu", "elu"] = "relu"
+    """the hidden-layer activation (thesis 6.3.2)"""
+    weight_init: Literal["torch", "he", "uniform-sqrt3"] = "torch"
+    """weights: torch U(+-1/sqrt(fan_in)); he: truncated normal std sqrt(2/fan_in);
+    uniform-sqrt3: U(+-sqrt(3)/sqrt(fan_in)) (thesis 6.3.3)"""
+    bias_init: float | None = None
+    """a constant for every bias (thesis A.1.3 uses 0.01); default: U(+-1/sqrt(fan_in)) for
+    torch init, 0 for the other weight inits"""
+    scale_obs: bool | None = None
+    """divide frames by 255; default: yes for ALE, no for Catch (the thesis fed Catch 0..255)"""
+
+    # Local weight sharing (thesis 6.1)
+    lws_kcps: int = 3
+    """S, the kernel-centroid pairs per LWS layer"""
+    lws_centroids: Literal["feature", "group"] = "feature"
+    """feature-wise: a centroid per pair and output map; group-wise: one per pair (kernel group)"""
+    lws_trainable: bool = True
+    """train the centroids and Sigma by gradient descent; else they stay at their initial values"""
+
+    # Evaluation, logging, checkpoints
+    eval_interval: int | None = None
+    """global steps between evaluations (default: 50,000 for Catch, 1,000,000 for ALE)"""
+    eval_episodes: int = 50
+    """episodes per evaluation, sampling actions from pi"""
+    checkpoint_interval: int | None = None
+    """global steps between checkpoints (default: the evaluation interval); also at the end"""
+    log_interval: float = 5.0
+    """seconds between console progress lines and TensorBoard scalars"""
+    runs_root: str = "runs"
+    """the folder that gets a new run folder runs_root/<run_name>"""
+    run_dir: str | None = None
+    """the run folder, instead of runs_root/<run_name> (with --resume: the checkpoint's)"""
+    resume: str | None = None
+    """a checkpoint.pt to continue training from (network, optimizer statistics, global step)"""
+    capture_video: bool = False
+    """record evaluation episodes (one per evaluation) to <run_dir>/videos"""
+    evaluate: str | None = None
+    """play --eval-episodes episodes with the network of this checkpoint, print the scores, exit"""
+    render: Literal["none", "human"] = "none"
+    """with --evaluate: 'human' shows the episodes in a window"""
+
+
+def resolve_defaults(args: Args) -> Args:
+    """Fill the env-dependent defaults and reject bad numbers with a clear message."""
+    from catch_env.wrappers import is_atari
+
+    try:
+        atari = is_atari(args.env)  # registers the ALE ids first
+    except ImportError as e:
+        raise UsageError(str(e)) from e
+    except gym.error.Error as e:
+        raise UsageError(
+            f"unknown --env {args.env!r}; valid: Catch-v0 or an ALE id such as "
+            "BreakoutNoFrameskip-v4, PongNoFrameskip-v4, BeamRiderNoFrameskip-v4"
+        ) from e
+    if args.total_timesteps is None:
+        args.total_timesteps = 100_000_000 if atari else 1_000_000
+    if args.eval_interval is None:
+        args.eval_interval = 1_000_000 if atari else 50_000
+    if args.checkpoint_interval is None:
+        args.checkpoint_interval = args.eval_interval
+    if args.grad_clip is None:
+        args.grad_clip = 25.0 if args.grad_clip_mode == "global-norm" else 40.0
+    if args.scale_obs is None:
+        args.scale_obs = atari
+    checks = {
+        "--total-timesteps": (args.total_timesteps, args.total_timesteps > 0, "> 0"),
+        "--num-workers": (args.num_workers, args.num_workers >= 1, ">= 1"),
+        "--learning-rate": (args.learning_rate, args.learning_rate >= 0, ">= 0"),
+        "--t-max": (args.t_max, args.t_max >= 1, ">= 1"),
+        "--gamma": (args.gamma, 0 <= args.gamma <= 1, "in [0, 1]"),
+        "--ent-coef": (args.ent_coef, args.ent_coef >= 0, ">= 0"),
+        "--vf-coef": (args.vf_coef, args.vf_coef >= 0, ">= 0"),
+        "--rms-decay": (args.rms_decay, 0 <= args.rms_decay < 1, "in [0, 1)"),
+        "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
+        "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
+        "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
+        "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
+        "--eval-episodes": (args.eval_episodes, args.eval_episodes >= 1, ">= 1"),
+        "--checkpoint-interval": (args.checkpoint_interval, args.checkpoint_interval > 0, "> 0"),
+        "--log-interval": (args.log_interval, args.log_interval > 0, "> 0"),
+    }
+    if args.time_limit is not None:
+        checks["--time-limit"] = (args.time_limit, args.time_limit > 0, "> 0")
+    for flag, (value, ok, rule) in checks.items():
+        if not (ok and math.isfinite(value)):
+            raise UsageError(f"{flag} must be {rule} (got {value})")
+    return args
+
+
+def make_env(env_id: str, *, render_mode: str | None = None, video_dir: str | None = None):
+    """The thesis preprocessing from catch_env.wrappers: 4 stacked 84x84 uint8 frames, Atari
+    action repeat 4 and reward clipping; info["episode"]["r"] is the raw game score."""
+    from catch_env.wrappers import make_env as make_wrapped_env
+
+    env = make_wrapped_env(env_id, render_mode="rgb_array" if video_dir else render_mode)
+    if video_dir:
+        env = gym.wrappers.RecordVideo(env, video_dir, episode_trigger=lambda _: True)
+    return env
+
+
+# ----------------------------------------------------------------------------------------------
+# The network. Variants (LWS, SS, WW, LSTM, LPQ, GLPQ) replace this class and NETWORK_ARGS.
+# Contract: forward(obs uint8 (B, 4, 84, 84)) -> (log-probabilities (B, A), values (B,)).
+# ----------------------------------------------------------------------------------------------
+# args a checkpoint's network depends on; seed too, since fixed centroids are drawn from it
+NETWORK_ARGS = ("env", "activation", "scale_obs", "lws_kcps", "lws_centroids", "lws_trainable",
+                "seed")  # fmt: skip
+
+
+class LWSConv2d(nn.Module):
+    """Local weight sharing layer (thesis 6.1.1, eqs. 6.1 and 6.2), before its activation:
+    Y = sum_s (W_s * X + b_s) * S_s / sum_s' S_s', with the similarity of output cell x = (i, j)
+    (row, column; the output grid spans [0, 1] on both axes) to centroid mu_s
+    S_s = exp(-(x - mu_s)^T Sigma (x - mu_s)). Feature-wise: a centroid per pair and output map;
+    group-wise: one per pair (its kernel group). Centroids start U[0, 1], Sigma (one 2x2 matrix
+    per layer) the identity; fixed ones are buffers drawn from `generator`, so that every
+    process, seeded alike, builds the same."""
+
+    def __init__(self, in_channels: int, out_channels: int, kernel_size: int, stride: int,
+                 input_size: int, args: Args, generator: torch.Generator):  # fmt: skip
+        super().__init__()
+        self.kcps, self.out_channels = args.lws_kcps, out_channels
+        # the S kernels as one convolution with S times the output maps: one pass, not S
+        self.conv = nn.Conv2d(in_channels, self.kcps * out_channels, kernel_size, stride)
+        size = (input_size - kernel_size) // stride + 1
+        # the output grid's row (i) and column (j) coordinates
+        self.register_buffer("axis", torch.linspace(0.0, 1.0, size), persistent=False)
+        maps = out_channels if args.lws_centroids == "feature" else 1
+        centroids = torch.rand(self.kcps, maps, 2, generator=generator)
+        sigma = torch.eye(2)
+        if args.lws_trainable:
+            self.centroids, self.sigma = nn.Parameter(centroids), nn.Parameter(sigma)
+        else:
+            self.register_buffer("centroids", centroids)
+            self.register_buffer("sigma", sigma)
+
+    def similarity_weights(self) -> torch.Tensor:
+        """S_s / sum_s' S_s' as (H, W, S, maps): the conv output's channels_last order. At every
+        output cell they sum to 1 over s."""
+        rows = (self.axis[:, None, None] - self.centroids[..., 0])[:, None]  # i - i_s (H, 1, S, m)
+        cols = self.axis[:, None, None] - self.centroids[..., 1]  # j - j_s (W, S, maps)
+        # (x - mu_s)^T Sigma (x - mu_s), expanded: 7x faster than an einsum over (H, W, S, m, 2)
+        sigma = self.sigma
+        distance = (sigma[0, 0] * rows.square() + (sigma[0, 1] + sigma[1, 0]) * rows * cols
+                    + sigma[1, 1] * cols.square())  # fmt: skip
+        # exp(-d_s) / sum_s' exp(-d_s') is a softmax over s; softmax cannot overflow
+        return torch.softmax(-distance, dim=2)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        # the S convolutions' outputs as (B, H, W, S, C): a view of the channels_last output
+        y = self.conv(x).permute(0, 2, 3, 1).unflatten(3, (self.kcps, self.out_channels))
+        return (y * self.similarity_weights()).sum(3).permute(0, 3, 1, 2)  # (B, C, H, W)
+
+
+class ActorCritic(nn.Module):
+    """A3C LWS (thesis 6.1.2): A3C FF with both convolutions replaced by LWS layers: LWS 32 8x8/4,
+    LWS 64 4x4/2, FC 256, softmax policy, linear value.
+
+    Parameters (S = 3, A actions): 3 * (8*8*4*32 + 4*4*32*64) = 122,880 kernel weights, 288 kernel
+    biases (b_s of eq. 6.1), FC 5184*256 + 256, policy 256*A + A, value 257; in all
+    1,450,785 + 257 A, plus the centroids (feature-wise 3 * (32 + 64) * 2 = 576, group-wise
+    3 * 2 * 2 = 12) and Sigma (2 * 4 = 8) when trainable. The thesis's 1,449,984 + 256 A
+    (6.1.2) counts weights only: 122,880 + 1,327,104 + 256 A; adding the 288 + 256 + A + 257
+    biases and value head gives ours. A3C FF here has 1,368,673 + 257 A (weights only:
+    1,368,064 + 256 A); the thesis's 1,336,320 + 256 A for it is 31,744 = 4*4*64*31 lower, as if
+    the second kernel's input depth of 32 had been left out (4*4*64 instead of 4*4*32*64)."""
+
+    def __init__(self, num_actions: int, args: Args):
+        super().__init__()
+        if args.lws_kcps < 1:
+            raise UsageError(f"--lws-kcps must be >= 1 (got {args.lws_kcps})")
+        activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
+        generator = torch.Generator().manual_seed(args.seed)
+        self.torso = nn.Sequential(
+            LWSConv2d(4, 32, 8, 4, input_size=84, args=args, generator=generator),
+            activation(),
+            LWSConv2d(32, 64, 4, 2, input_size=20, args=args, generator=generator),
+            activation(),
+            nn.Flatten(),
+            nn.Linear(64 * 9 * 9, 256),
+            activation(),
+        )
+        self.policy = nn.Linear(256, num_actions)
+        self.value = nn.Linear(256, 1)
+        self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
+        init_parameters(self, args.weight_init, args.bias_init)
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        # channels_last makes oneDNN's convolution backward about 2x faster on CPU
+        x = obs.to(dtype=torch.float32, memory_format=torch.channels_last)
+        if self.obs_scale != 1.0:
+            x = x * self.obs_scale
+        hidden = self.torso(x)
+        return F.log_softmax(self.policy(hidden), dim=-1), self.value(hidden).squeeze(-1)
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def init_parameters(model: nn.Module, weight_init: str, bias_init: float | None) -> None:
+    """Initialise every Conv2d/Linear layer with the thesis 6.3.3 scheme; biases per A.1.3."""
+    for layer in model.modules():
+        if not isinstance(layer, (nn.Conv2d, nn.Linear)):
+            continue
+        fan_in = layer.weight[0].numel()
+        if weight_init == "he":
+            std = math.sqrt(2.0 / fan_in)
+            nn.init.trunc_normal_(layer.weight, std=std, a=-2 * std, b=2 * std)
+        elif weight_init == "uniform-sqrt3":
+            bound = math.sqrt(3.0 / fan_in)
+            nn.init.uniform_(layer.weight, -bound, bound)
+        # "torch": keep PyTorch's default, which is Torch7's U(-1/sqrt(fan_in), 1/sqrt(fan_in))
+        if bias_init is not None:
+            nn.init.constant_(layer.bias, bias_init)
+        elif weight_init != "torch":
+            nn.init.zeros_(layer.bias)
+
+
+def annealed_lr(args: Args, global_step: int) -> float:
+    if not args.anneal_lr:
+        return args.learning_rate
+    return args.learning_rate * max(0.0, 1.0 - global_step / args.total_timesteps)
+
+
+def sample_action(probs: list[float], u: float) -> int:
+    """Inverse-CDF sampling with u ~ U[0, 1): a few microseconds for one state, unlike
+    torch.multinomial's per-call overhead."""
+    u *= sum(probs)
+    for action, p in enumerate(probs):
+        u -= p
+        if u < 0.0:
+            return action
+    return len(probs) - 1
+
+
+def n_step_returns(rewards: np.ndarray, bootstrap_value: float, gamma: float) -> np.ndarray:
+    """G_i = r_i + gamma * G_{i+1}, starting from G = V(s_last), or 0 after a terminal state."""
+    returns = np.empty(len(rewards), dtype=np.float32)
+    g = bootstrap_value
+    for i in range(len(rewards) - 1, -1, -1):
+        g = rewards[i] + gamma * g
+        returns[i] = g
+    return returns
+
+
+def a3c_loss(
+    log_probs: torch.Tensor,
+    actions: torch.Tensor,
+    values: torch.Tensor,
+    returns: torch.Tensor,
+    ent_coef: float,
+    vf_coef: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The A3C loss summed over the rollout (Algorithm 1): policy gradient with the advantage
+    not back-propagated, minus beta * entropy, plus lambda_V * 0.5 * (G - V)^2.
+    Returns (loss, policy_loss, value_loss, entropy), the last three before their factors."""
+    advantages = returns - values
+    policy_loss = -(log_probs.gather(1, actions[:, None]).squeeze(1) * advantages.detach()).sum()
+    entropy = -(log_probs.exp() * log_probs).sum()
+    value_loss = 0.5 * advantages.pow(2).sum()
+    return policy_loss - ent_coef * entropy + vf_coef * value_loss, policy_loss, value_loss, entropy
+
+
+def clip_gradients(grads: list[torch.Tensor], mode: str, bound: float) -> float:
+    """Clip in place (thesis 6.3.1); returns the global norm before clipping."""
+    norms = torch.stack(torch._foreach_norm(grads))
+    global_norm = torch.linalg.vector_norm(norms)
+    # scale only when a bound is exceeded: a pass over 1.3M gradients saved in most updates
+    if mode == "norm" and bool((norms > bound).any()):
+        torch._foreach_mul_(grads, (bound / (norms + 1e-6)).clamp_(max=1.0).unbind())
+    elif mode == "value":
+        torch._foreach_clamp_min_(grads, -bound)
+        torch._foreach_clamp_max_(grads, bound)
+    elif mode == "global-norm" and global_norm > bound:
+        torch._foreach_mul_(grads, torch.clamp(bound / (global_norm + 1e-6), max=1.0))
+    return global_norm.item()
+
+
+class SharedRMSprop:
+    """RMSprop with the mean square shared by all workers (thesis 2.2.3, 5.2.2):
+    ms <- rho * ms + (1 - rho) * g^2;  theta <- theta - lr * g / sqrt(ms + eps)."""
+
+    def __init__(self, params: list[torch.Tensor], decay: float, eps: float):
+        self.params, self.decay, self.eps = params, decay, eps
+        self.square_avg = [torch.zeros_like(p).share_memory_() for p in params]
+
+    @torch.no_grad()
+    def step(self, grads: list[torch.Tensor], lr: float) -> None:
+        torch._foreach_mul_(self.square_avg, self.decay)
+        torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
+        denom = torch._foreach_add(self.square_avg, self.eps)
+        torch._foreach_sqrt_(denom)
+        torch._foreach_addcdiv_(self.params, grads, denom, value=-lr)
+
+    def state_dict(self) -> dict:
+        return {"square_avg": [s.clone() for s in self.square_avg]}
+
+    @torch.no_grad()
+    def load_state_dict(self, state: dict) -> None:
+        torch._foreach_copy_(self.square_avg, state["square_avg"])
+
+
+class SharedAdam:
+    """Adam with shared moments and step count (thesis A.1.2, eqs. A.1-A.5; eps inside the root)."""
+
+    def __init__(self, params: list[torch.Tensor], beta1: float, beta2: float, eps: float):
+        self.params, self.beta1, self.beta2, self.eps = params, beta1, beta2, eps
+        self.exp_avg = [torch.zeros_like(p).share_memory_() for p in params]
+        self.exp_avg_sq = [torch.zeros_like(p).share_memory_() for p in params]
+        self.step_count = torch.zeros(1, dtype=torch.float64).share_memory_()
+
+    @torch.no_grad()
+    def step(self, grads: list[torch.Tensor], lr: float) -> None:
+        self.step_count += 1  # not atomic: Hogwild, like the moments
+        t = self.step_count.item()
+        torch._foreach_lerp_(self.exp_avg, grads, 1.0 - self.beta1)
+        torch._foreach_mul_(self.exp_avg_sq, self.beta2)
+        torch._foreach_addcmul_(self.exp_avg_sq, grads, grads, value=1.0 - self.beta2)
+        denom = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
+        torch._foreach_add_(denom, self.eps)
+        torch._foreach_sqrt_(denom)
+        torch._foreach_addcdiv_(self.params, self.exp_avg, denom, value=-lr / (1.0 - self.beta1**t))
+
+    def state_dict(self) -> dict:
+        return {
+            "exp_avg": [m.clone() for m in self.exp_avg],
+            "exp_avg_sq": [v.clone() for v in self.exp_avg_sq],
+            "step_count": self.step_count.clone(),
+        }
+
+    @torch.no_grad()
+    def load_state_dict(self, state: dict) -> None:
+        torch._foreach_copy_(self.exp_avg, state["exp_avg"])
+        torch._foreach_copy_(self.exp_avg_sq, state["exp_avg_sq"])
+        self.step_count.copy_(state["step_count"])
+
+
+def make_optimizer(params: list[torch.Tensor], args: Args) -> SharedRMSprop | SharedAdam:
+    if args.optimizer == "adam":
+        return SharedAdam(params, args.adam_beta1, args.rms_decay, args.optim_eps)
+    return SharedRMSprop(params, args.rms_decay, args.optim_eps)
+
+
+class Shared:
+    """Everything the processes share: the global network, optimizer statistics, counters."""
+
+    STATS = ("episodes", "return_sum", "length_sum", "updates", "policy_loss", "value_loss",
+             "entropy", "grad_norm")  # fmt: skip
+
+    def __init__(self, args: Args, num_actions: int, ctx):
+        self.model = ActorCritic(num_actions, args).to(memory_format=torch.channels_last)
+        self.model.share_memory()
+        self.params = list(self.model.parameters())
+        self.optimizer = make_optimizer(self.params, args)
+        # one step counter per worker, written only by its worker: lock-free and exact
+        self.steps = torch.zeros(args.num_workers, dtype=torch.int64).share_memory_()
+        self.base_step = torch.zeros(1, dtype=torch.int64).share_memory_()  # from --resume
+        self.stats = torch.zeros(args.num_workers, len(self.STATS), dtype=torch.float64)
+        self.stats.share_memory_()
+        self.ready = torch.zeros(args.num_workers, dtype=torch.int64).share_memory_()
+        self.evaluator_ready = ctx.Event()  # the workers start once it has the initial network
+        self.stop = ctx.Event()  # tells the workers to stop after their rollout
+        self.final_eval = ctx.Event()  # training finished: the evaluator plays the last one
+        self.stop_evaluator = ctx.Event()  # interrupted or failed: no final evaluation
+        self.errors = ctx.SimpleQueue()  # (process name, traceback)
+        self.evaluations = ctx.SimpleQueue()  # dicts from the evaluator
+
+    def global_step(self) -> int:
+        return int(self.steps.sum()) + int(self.base_step)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def keep_freed_memory() -> None:
+    """Ask glibc to keep freed memory instead of returning it to the OS: every update allocates
+    tensors of the FC weight's size (5 MB), and page-faulting them in again costs ~5%."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:  # not glibc
+        return
+    libc.mallopt(-3, 256 << 20)  # M_MMAP_THRESHOLD: serve blocks below 256 MB from the heap
+    libc.mallopt(-1, 1 << 30)  # M_TRIM_THRESHOLD: keep up to 1 GB of free heap
+
+
+terminate_requested = False  # set by SIGTERM in a worker or the evaluator
+
+
+def run_process(name: str, shared: Shared, target, *target_args) -> None:
+    """Process entry: one torch thread; leave SIGINT to the main process (the terminal sends it
+    to the whole group); SIGTERM ends the loop; any exception is reported to the main process."""
+
+    def on_sigterm(_signum, _frame):
+        global terminate_requested
+        terminate_requested = True
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, on_sigterm)
+    torch.set_num_threads(1)
+    torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
+    keep_freed_memory()
+    try:
+        target(*target_args)
+    except BaseException:
+        shared.errors.put((name, traceback.format_exc()))
+        sys.exit(1)
+
+
+def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
+    """One actor-learner (Algorithm 1): sync, act t_max steps, one batched update, repeat."""
+    seed_everything(args.seed + worker_id)
+    rng = random.Random(args.seed + worker_id)
+    env = make_env(args.env)
+    model = ActorCritic(env.action_space.n, args).to(memory_format=torch.channels_last)
+    params = list(model.parameters())
+    obs_buf = torch.zeros((args.t_max + 1, *env.observation_space.shape), dtype=torch.uint8)
+    actions = torch.zeros(args.t_max, dtype=torch.int64)
+    rewards = np.zeros(args.t_max, dtype=np.float32)
+    stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
+    obs, _ = env.reset(seed=args.seed + worker_id)
+    obs_buf[0].copy_(torch.from_numpy(obs))
+    while not shared.evaluator_ready.wait(0.1):  # so that the first evaluation sees step 0
+        if terminate_requested or shared.stop.is_set() or os.getppid() != parent_pid:
+            return
+    shared.ready[worker_id] = 1
+
+    while not (terminate_requested or shared.stop.is_set()) and os.getppid() == parent_pid:
+        global_step = shared.global_step()
+        if global_step >= args.total_timesteps:
+            break
+        with torch.no_grad():
+            torch._foreach_copy_(params, shared.params)  # theta' <- theta
+        # act with the synced local network until t_max steps or the episode ends
+        terminated = truncated = False
+        with torch.inference_mode():
+            for t in range(args.t_max):
+                log_probs, _ = model(obs_buf[t : t + 1])
+                action = sample_action(log_probs[0].exp().tolist(), rng.random())
+                obs, reward, terminated, truncated, info = env.step(action)
+                actions[t], rewards[t] = action, reward
+                obs_buf[t + 1].copy_(torch.from_numpy(obs))
+                if terminated or truncated:
+                    stats[0] += 1
+                    stats[1] += float(info["episode"]["r"])
+                    stats[2] += int(info["episode"]["l"])
+                    break
+        n = t + 1
+        # one batched forward/backward over the rollout; row n gives V(s_last) to bootstrap from
+        log_probs, values = model(obs_buf[: n if terminated else n + 1])
+        bootstrap = 0.0 if terminated else float(values[n])
+        returns = torch.from_numpy(n_step_returns(rewards[:n], bootstrap, args.gamma))
+        loss, policy_loss, value_loss, entropy = a3c_loss(
+            log_probs[:n], actions[:n], values[:n], returns, args.ent_coef, args.vf_coef
+        )
+        grads = torch.autograd.grad(loss, params)
+        grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
+        shared.optimizer.step(grads, annealed_lr(args, global_step))
+
+        shared.steps[worker_id] += n
+        stats[3] += 1
+        stats[4:8] += torch.stack([policy_loss, value_loss, entropy, torch.tensor(grad_norm)])
+        shared.stats[worker_id].copy_(stats)
+        if terminated or truncated:
+            obs, _ = env.reset()
+            obs_buf[0].copy_(torch.from_numpy(obs))
+        else:
+            obs_buf[0].copy_(obs_buf[n])
+    env.close()
+
+
+def play_episodes(
+    model: nn.Module, envs: list[gym.Env], seeds: list[int] | None = None
+) -> np.ndarray:
+    """Play one episode in each env in lock-step with one batched forward per step, sampling
+    actions from pi; returns the raw game scores."""
+    observations = [env.reset(seed=None if seeds is None else seeds[i])[0] for i, env in
+                    enumerate(envs)]  # fmt: skip
+    scores = np.zeros(len(envs))
+    running = list(range(len(envs)))
+    with torch.inference_mode():
+        while running:
+            batch = torch.from_numpy(np.stack([observations[i] for i in running]))
+            log_probs, _ = model(batch)
+            chosen = torch.multinomial(log_probs.exp(), 1).squeeze(1).tolist()
+            still_running = []
+            for i, action in zip(running, chosen, strict=True):
+                observations[i], _, terminated, truncated, info = envs[i].step(action)
+                if terminated or truncated:
+                    scores[i] = float(info["episode"]["r"])
+                else:
+                    still_running.append(i)
+            running = still_running
+    return scores
+
+
+def evaluator(shared: Shared, args: Args, run_dir: str, parent_pid: int) -> None:
+    """Evaluate a snapshot of the global network every eval_interval global steps (thesis
+    protocol: 50 episodes sampling from pi) and once more when training ends."""
+    seed = args.seed + args.num_workers
+    seed_everything(seed)
+    rng = np.random.default_rng(seed)
+    video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
+    envs = [make_env(args.env, video_dir=video_dir if i == 0 else None)
+            for i in range(args.eval_episodes)]  # fmt: skip
+    model = ActorCritic(envs[0].action_space.n, args).to(memory_format=torch.channels_last)
+    params = list(model.parameters())
+    start_step = shared.global_step()  # the workers wait for evaluator_ready
+    next_eval = (
+        0 if start_step == 0 else (start_step // args.eval_interval + 1) * args.eval_interval
+    )
+    if next_eval > 0:
+        shared.evaluator_ready.set()
+    while not terminate_requested and os.getppid() == parent_pid:
+        final = shared.final_eval.is_set()
+        global_step = shared.global_step()
+        if final or (global_step >= next_eval and global_step < args.total_timesteps):
+            with torch.no_grad():
+                torch._foreach_copy_(params, shared.params)
+            shared.evaluator_ready.set()  # the initial network is copied: the workers may start
+            start = time.time()
+            scores = play_episodes(model, envs, rng.integers(2**31, size=len(envs)).tolist())
+            shared.evaluations.put(
+                {"global_step": global_step, "scores": scores.tolist(), "final": final,
+                 "seconds": time.time() - start}
+            )  # fmt: skip
+            if final:
+                break
+            next_eval = (global_step // args.eval_interval + 1) * args.eval_interval
+        elif shared.stop_evaluator.is_set():
+            break
+        else:
+            time.sleep(0.05)
+    for env in envs:
+        env.close()
+
+
+def save_checkpoint(path: Path, shared: Shared, args: Args, wall_time: float) -> None:
+    """Write atomically (temp file + rename) so that a crash never leaves a corrupt checkpoint."""
+    checkpoint = {
+        "format": CHECKPOINT_FORMAT,
+        "network": type(shared.model).__name__,
+        "model": {k: v.detach().clone() for k, v in shared.model.state_dict().items()},
+        "optimizer": shared.optimizer.state_dict(),
+        "optimizer_name": args.optimizer,
+        "global_step": shared.global_step(),
+        "wall_time": wall_time,
+        "args": asdict(args),
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(checkpoint, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str) -> dict:
+    """Load a checkpoint of this script, or raise UsageError saying what is wrong with it."""
+    if not os.path.isfile(path):
+        raise UsageError(f"checkpoint {path!r} does not exist")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:
+        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {e}") from e
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        raise UsageError(f"{path!r} is not a checkpoint written by this script")
+    if checkpoint["network"] != ActorCritic.__name__:
+        raise UsageError(
+            f"checkpoint {path!r} holds a {checkpoint['network']} network, "
+            f"this script builds {ActorCritic.__name__}"
+        )
+    return checkpoint
+
+
+def restore(shared: Shared, checkpoint: dict, args: Args, path: str) -> None:
+    for key in NETWORK_ARGS:
+        if checkpoint["args"][key] != getattr(args, key):
+            raise UsageError(
+                f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
+                f"{checkpoint['args'][key]}, not {getattr(args, key)}"
+            )
+    if checkpoint["optimizer_name"] != args.optimizer:
+        raise UsageError(
+            f"checkpoint {path!r} holds {checkpoint['optimizer_name']} statistics; "
+            f"pass --optimizer {checkpoint['optimizer_name']}"
+        )
+    try:
+        shared.model.load_state_dict(checkpoint["model"])
+        shared.optimizer.load_state_dict(checkpoint["optimizer"])
+    except (RuntimeError, KeyError) as e:
+        raise UsageError(f"checkpoint {path!r} does not fit this network: {e}") from e
+    shared.base_step[0] = checkpoint["global_step"]
+
+
+def format_seconds(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "?"
+    minutes, secs = divmod(int(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}h{minutes:02d}m{secs:02d}s" if hours else f"{minutes}m{secs:02d}s"
+
+
+def describe_exit(exitcode: int) -> str:
+    if exitcode < 0:
+        return f"was killed by {signal.Signals(-exitcode).name}"
+    return f"exited with code {exitcode}"
+
+
+class RunLog:
+    """The main process's outputs: TensorBoard scalars, evaluations.csv and the console."""
+
+    def __init__(self, run_dir: Path, args: Args, wall_offset: float):
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.args, self.start, self.wall_offset = args, time.time(), wall_offset
+        self.writer = SummaryWriter(str(run_dir))
+        self.writer.add_text(
+            "hyperparameters",
+            "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
+        )
+        csv_path = run_dir / "evaluations.csv"
+        new_csv = not csv_path.exists()
+        self.csv_file = open(csv_path, "a", newline="")  # noqa: SIM115 (open for the whole run)
+        self.csv = csv.writer(self.csv_file)
+        if new_csv:
+            self.csv.writerow(
+                ["global_step", "wall_time_s", "mean_return", "std_return", "episodes"]
+            )
+        self.last_eval: dict | None = None
+        self.recent_return = float("nan")
+
+    def wall_time(self) -> float:
+        """Seconds of training, including those before --resume."""
+        return self.wall_offset + time.time() - self.start
+
+    def evaluation(self, result: dict) -> None:
+        scores = np.asarray(result["scores"])
+        row = {"global_step": result["global_step"], "wall_time_s": round(self.wall_time(), 2),
+               "mean_return": float(scores.mean()), "std_return": float(scores.std()),
+               "episodes": len(scores)}  # fmt: skip
+        self.csv.writerow(row.values())
+        self.csv_file.flush()
+        self.writer.add_scalar("eval/mean_return", row["mean_return"], row["global_step"])
+        self.writer.add_scalar("eval/std_return", row["std_return"], row["global_step"])
+        self.last_eval = row
+
+    def progress(self, global_step: int, sps: float, lr: float, stats_delta: torch.Tensor) -> None:
+        """Log the scalars of the last interval; stats_delta holds Shared.STATS summed."""
+        self.writer.add_scalar("charts/SPS", sps, global_step)
+        self.writer.add_scalar("charts/learning_rate", lr, global_step)
+        episodes, return_sum, length_sum, updates = stats_delta[:4].tolist()
+        if episodes > 0:
+            self.recent_return = return_sum / episodes
+            self.writer.add_scalar("charts/episodic_return", self.recent_return, global_step)
+            self.writer.add_scalar("charts/episodic_length", length_sum / episodes, global_step)
+        if updates > 0:
+            for key, total in zip(Shared.STATS[4:], stats_delta[4:].tolist(), strict=True):
+                self.writer.add_scalar(f"losses/{key}", total / updates, global_step)
+        total_steps = self.args.total_timesteps
+        eta = (total_steps - global_step) / sps if sps > 0 else float("inf")
+        last = self.last_eval
+        print(
+            f"step {global_step:,}/{total_steps:,} ({100 * global_step / total_steps:.1f}%) | "
+            f"SPS {sps:,.0f} | return {self.recent_return:.3f} | eval "
+            + (f"{last['mean_return']:.3f} @ {last['global_step']:,}" if last else "-")
+            + f" | ETA {format_seconds(max(0.0, eta))}",
+            flush=True,
+        )
+
+    def close(self) -> None:
+        self.writer.close()
+        self.csv_file.close()
+
+
+def train(args: Args) -> dict:
+    """Run A3C; returns the summary. Raises UsageError for a bad checkpoint and RuntimeError
+    when a worker or the evaluator dies."""
+    torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
+    checkpoint = load_checkpoint(args.resume) if args.resume else None
+    run_name = f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    if args.run_dir:
+        run_dir = Path(args.run_dir)
+    elif checkpoint is not None:
+        run_dir = Path(args.resume).resolve().parent
+    else:
+        run_dir = Path(args.runs_root) / run_name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    checkpoint_path = run_dir / "checkpoint.pt"
+
+    seed_everything(args.seed)
+    probe = make_env(args.env)
+    num_actions = probe.action_space.n
+    probe.close()
+    ctx = mp.get_context("fork")  # fast start, and works when this file is loaded by path
+    shared = Shared(args, num_actions, ctx)
+    if checkpoint is not None:
+        restore(shared, checkpoint, args, args.resume)
+    start_step = shared.global_step()
+
+    stop_signal: list[str] = []
+    previous_handlers = {
+        s: signal.signal(s, lambda signum, _: stop_signal.append(signal.Signals(signum).name))
+        for s in (signal.SIGINT, signal.SIGTERM)
+    }
+    processes = {
+        f"worker {i}": ctx.Process(
+            target=run_process,
+            args=(f"worker {i}", shared, worker, i, shared, args, os.getpid()),
+            daemon=True,
+        )
+        for i in range(args.num_workers)
+    }
+    processes["evaluator"] = ctx.Process(
+        target=run_process,
+        args=("evaluator", shared, evaluator, shared, args, str(run_dir), os.getpid()),
+        daemon=True,
+    )
+    for process in processes.values():
+        process.start()
+    workers = [p for name, p in processes.items() if name != "evaluator"]
+    print(f"run {run_name} -> {run_dir}", flush=True)
+    print("pids: " + ", ".join(f"{n} {p.pid}" for n, p in processes.items()), flush=True)
+    # after the fork: the TensorBoard writer thread must not be forked
+    log = RunLog(run_dir, args, checkpoint["wall_time"] if checkpoint else 0.0)
+
+    failure = outcome = None
+    steady_start = None  # (time, step) once every worker is ready, for the SPS
+    last_log = (time.time(), start_step, shared.stats.clone())
+    next_checkpoint = (start_step // args.checkpoint_interval + 1) * args.checkpoint_interval
+    try:
+        while outcome is None and failure is None:
+            time.sleep(0.1)
+            # exit codes before the step: a worker that ended normally saw step >= T_max
+            exitcodes = {name: p.exitcode for name, p in processes.items()}
+            now, global_step = time.time(), shared.global_step()
+            if steady_start is None and bool(shared.ready.all()):
+                steady_start = (now, global_step)
+            while not shared.errors.empty():
+                name, trace = shared.errors.get()
+                failure = f"{name} failed:\n{trace}"
+            while not shared.evaluations.empty():
+                log.evaluation(shared.evaluations.get())
+            if stop_signal:
+                outcome = f"stopped by {stop_signal[0]}"
+                break
+            for name, code in exitcodes.items():
+                # exit 0 is only expected of a worker that reached T_max
+                early = name == "evaluator" or global_step < args.total_timesteps
+                if failure is None and code is not None and (code != 0 or early):
+                    failure = f"{name} (pid {processes[name].pid}) {describe_exit(code)}"
+            if failure is None and all(p.exitcode == 0 for p in workers):
+                outcome = "done"
+            elif args.time_limit is not None and now - log.start >= args.time_limit:
+                outcome = "time limit"
+            if global_step >= next_checkpoint:
+                save_checkpoint(checkpoint_path, shared, args, log.wall_time())
+                next_checkpoint = (
+                    global_step // args.checkpoint_interval + 1
+                ) * args.checkpoint_interval
+            if now - last_log[0] >= args.log_interval:
+                stats = shared.stats.clone()
+                sps = (global_step - last_log[1]) / (now - last_log[0])
+                log.progress(
+                    global_step, sps, annealed_lr(args, global_step), (stats - last_log[2]).sum(0)
+                )
+                last_log = (now, global_step, stats)
+    finally:
+        shared.stop.set()  # the workers finish their rollout and exit
+        if outcome not in ("done", "time limit") or failure is not None:
+            shared.stop_evaluator.set()
+        deadline = time.time() + 10
+        for name, process in processes.items():
+            if name != "evaluator" or shared.stop_evaluator.is_set():
+                process.join(max(0.1, deadline - time.time()))
+                if process.is_alive():
+                    process.terminate()
+                    process.join(1)
+    end_time = time.time()
+    global_step = shared.global_step()
+
+    if failure is None:
+        save_checkpoint(checkpoint_path, shared, args, log.wall_time())
+        if outcome in ("done", "time limit"):
+            # the final evaluation, of the network after the last update
+            shared.final_eval.set()
+            evaluator_process = processes["evaluator"]
+            while evaluator_process.is_alive() and not stop_signal:
+                evaluator_process.join(0.1)
+                while not shared.evaluations.empty():
+                    log.evaluation(shared.evaluations.get())
+            if stop_signal:
+                evaluator_process.terminate()
+                outcome = f"stopped by {stop_signal[0]} in the final evaluation"
+            elif evaluator_process.exitcode != 0:
+                failure = f"evaluator {describe_exit(evaluator_process.exitcode)}"
+            while not shared.evaluations.empty():
+                log.evaluation(shared.evaluations.get())
+    while not shared.errors.empty():
+        name, trace = shared.errors.get()
+        failure = f"{failure or name + ' failed'}:\n{trace}"
+    for s, handler in previous_handlers.items():
+        signal.signal(s, handler)
+    log.close()
+    if failure is not None:
+        raise RuntimeError(failure)
+
+    start_time, start_of_sps = steady_start or (log.start, start_step)
+    sps = (global_step - start_of_sps) / max(end_time - start_time, 1e-9)
+    last = log.last_eval
+    summary = {
+        "outcome": outcome,
+        "run_dir": str(run_dir),
+        "global_step": global_step,
+        "final_eval": last["mean_return"] if last else float("nan"),
+        "final_eval_step": last["global_step"] if last else None,
+        "wall_time_s": end_time - log.start,
+        "sps": sps,
+    }
+    eval_text = (
+        f"final eval {last['mean_return']:.3f} at step {last['global_step']:,}"
+        if last
+        else "no evaluation"
+    )
+    print(
+        f"{outcome}: {eval_text} | wall time {format_seconds(summary['wall_time_s'])} | "
+        f"SPS {sps:,.0f} | {global_step:,} steps | {run_dir}",
+        flush=True,
+    )
+    return summary
+
+
+def evaluate(args: Args) -> np.ndarray:
+    """Play episodes with a checkpoint's network, print each score and the mean."""
+    checkpoint = load_checkpoint(args.evaluate)
+    trained = Args(**checkpoint["args"])
+    seed_everything(args.seed)
+    video_dir = os.path.join(os.path.dirname(args.evaluate), "videos-evaluate")
+    env = make_env(
+        trained.env,
+        render_mode="human" if args.render == "human" else None,
+        video_dir=video_dir if args.capture_video else None,
+    )
+    model = ActorCritic(env.action_space.n, trained)
+    model.load_state_dict(checkpoint["model"])
+    scores = []
+    for episode in range(args.eval_episodes):
+        seed = args.seed + episode
+        scores.append(play_episodes(model, [env], [seed])[0])
+        print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
+    env.close()
+    print(
+        f"{trained.env}, step {checkpoint['global_step']:,}: mean score {np.mean(scores):.3f} "
+        f"+- {np.std(scores):.3f} over {len(scores)} episodes",
+        flush=True,
+    )
+    return np.asarray(scores)
+
+
+def main() -> int:
+    args = tyro.cli(Args)
+    import catch_env  # noqa: F401  (registers Catch-v0 and the ALE ids)
+
+    try:
+        if args.evaluate:
+            evaluate(args)
+            return 0
+        train(resolve_defaults(args))
+    except UsageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except RuntimeError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
