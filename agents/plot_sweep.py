@@ -1,0 +1,263 @@
+"""Plot learning-rate sweeps the way the thesis does (Figures 6.3, 6.5-6.8, 7.1-7.7).
+
+    python agents/plot_sweep.py sweeps/a3c_ff/results.csv sweeps/glpq/results.csv \\
+        --labels "A3C FF" "A3C GLPQ" --out sweep.png
+
+Each results table written by `agents/sweep.py` is one configuration and one line. The figure,
+as in the thesis:
+- upper left: each run's mean score over all of its evaluations (the thesis's "mean score on 20
+  evaluations"), against log10 of the learning rate;
+- upper right: each run's score, the mean of its final 5 evaluations;
+- below: a bar per configuration, the mean score of the final 5 evaluations over the runs whose
+  learning rate lies in [1e-5, 1e-2] (--bar-range), with the standard error of that mean and the
+  number of runs.
+
+The curves follow the thesis's plotting code: the runs are sorted by log10(learning rate),
+linearly interpolated onto 50 evenly spaced points of the x range, and smoothed with a
+Savitzky-Golay filter of window 5 and polynomial order 3 (each point replaced by the value at it
+of the cubic least-squares fit to the 5 points around it; at both ends, the cubic fit to the
+first or last 5 points). Two deliberate differences: runs with the same learning rate are
+averaged before interpolating, and the curve is drawn only between the lowest and the highest
+learning rate sampled, rather than extrapolated to the ends of the axis. The runs themselves are
+drawn as faint dots in the line's colour, since a first reproduction has far fewer of them than
+the thesis's 50-100. Failed runs are left out of the curves and the bars, and counted in the
+table printed on stdout.
+
+The table printed on stdout (markdown) gives, per configuration, the runs (ok/all), the bar's
+value and the mean over all evaluations, ready for a README.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+GRID_POINTS = 50  # the thesis interpolated onto np.linspace(lo, hi), 50 points
+SAVGOL_WINDOW = 5
+SAVGOL_ORDER = 3
+
+
+def savgol(y: np.ndarray, window: int = SAVGOL_WINDOW, order: int = SAVGOL_ORDER) -> np.ndarray:
+    """Savitzky-Golay smoothing: each point becomes the value at it of the least-squares
+    polynomial of degree `order` through the `window` points centred on it; the first and last
+    window // 2 points take the values of the polynomial fitted to the first or last `window`
+    points (scipy.signal.savgol_filter's mode="interp"). Fewer points than `window`: unchanged."""
+    y = np.asarray(y, dtype=float)
+    if len(y) < window:
+        return y.copy()
+    half = window // 2
+    offsets = np.arange(-half, half + 1, dtype=float)
+    # row 0 of the pseudo-inverse of the Vandermonde matrix maps the window to the fit's value
+    # at offset 0
+    coefficients = np.linalg.pinv(np.vander(offsets, order + 1, increasing=True))[0]
+    smoothed = y.copy()
+    smoothed[half:-half] = np.convolve(y, coefficients[::-1], mode="valid")
+    positions = np.arange(window, dtype=float)
+    head = np.polyval(np.polyfit(positions, y[:window], order), positions[:half])
+    tail = np.polyval(np.polyfit(positions, y[-window:], order), positions[-half:])
+    smoothed[:half], smoothed[-half:] = head, tail
+    return smoothed
+
+
+def smooth_curve(
+    x: np.ndarray, y: np.ndarray, x_range: tuple[float, float], points: int = GRID_POINTS
+) -> tuple[np.ndarray, np.ndarray]:
+    """The thesis's sweep curve: average runs with equal x, sort by x, interpolate linearly onto
+    `points` evenly spaced points of x_range (keeping those within the data), Savitzky-Golay
+    smooth (window 5, order 3). Returns the grid points and the curve on them."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    keep = np.isfinite(x) & np.isfinite(y)
+    x, y = x[keep], y[keep]
+    if len(x) == 0:
+        return np.empty(0), np.empty(0)
+    unique_x, inverse = np.unique(x, return_inverse=True)
+    mean_y = np.bincount(inverse, weights=y) / np.bincount(inverse)
+    grid = np.linspace(x_range[0], x_range[1], points)
+    grid = grid[(grid >= unique_x[0]) & (grid <= unique_x[-1])]
+    if len(grid) == 0:
+        return unique_x, mean_y
+    return grid, savgol(np.interp(grid, unique_x, mean_y))
+
+
+def read_table(path: str, x_column: str) -> dict:
+    """A sweep's runs: x (log10 of the x column), score, score_all for the ok runs; counts."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if rows and x_column not in rows[0]:
+        alternative = x_column.replace("-", "_") if "-" in x_column else x_column.replace("_", "-")
+        if alternative not in rows[0]:
+            raise ValueError(f"{path} has no column {x_column!r}; columns: {list(rows[0])}")
+        x_column = alternative
+    ok = [row for row in rows if row.get("status") == "ok"]
+    return {
+        "values": np.array([float(row[x_column]) for row in ok]),
+        "score": np.array([float(row["score"]) for row in ok]),
+        "score_all": np.array([float(row["score_all"]) for row in ok]),
+        "runs": len(rows),
+        "ok": len(ok),
+    }
+
+
+def bar_value(values: np.ndarray, scores: np.ndarray, bar_range: tuple[float, float]) -> dict:
+    """Mean, standard error and count of the scores whose value lies in bar_range (inclusive)."""
+    selected = scores[(values >= bar_range[0]) & (values <= bar_range[1])]
+    n = len(selected)
+    mean = float(selected.mean()) if n else math.nan
+    sem = float(selected.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
+    return {"mean": mean, "sem": sem, "n": n}
+
+
+def plot(
+    tables: list[dict],
+    labels: list[str],
+    out: str,
+    *,
+    x_label: str,
+    x_range: tuple[float, float],
+    bar_range: tuple[float, float],
+    title: str | None = None,
+    log_x: bool = True,
+) -> None:
+    """Draw the figure (two curve panels above, the bar chart below) into the PNG `out`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with plt.style.context("ggplot"):
+        fig = plt.figure(figsize=(12, 9), constrained_layout=True)
+        grid = fig.add_gridspec(2, 2, height_ratios=[3, 2])
+        panels = [
+            (fig.add_subplot(grid[0, 0]), "score_all", "Mean score, all evaluations"),
+            (fig.add_subplot(grid[0, 1]), "score", "Mean score, final 5 evaluations"),
+        ]
+        bars = fig.add_subplot(grid[1, :])
+        colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        all_scores = np.concatenate([t["score_all"] for t in tables] + [t["score"] for t in tables])
+        y_max = 1.0 if all_scores.size == 0 or all_scores.max() <= 1.0 else None
+        x_text = f"log10({x_label})" if log_x else x_label
+        for i, (table, label) in enumerate(zip(tables, labels, strict=True)):
+            color = colors[i % len(colors)]
+            x = np.log10(table["values"]) if log_x else table["values"]
+            for ax, key, _ in panels:
+                ax.scatter(x, table[key], s=20, color=color, alpha=0.45, linewidths=0)
+                curve_x, curve_y = smooth_curve(x, table[key], x_range)
+                ax.plot(curve_x, curve_y, color=color, linewidth=3, label=label)
+            bar = bar_value(table["values"], table["score"], bar_range)
+            error = bar["sem"] if bar["n"] > 1 else 0.0
+            bars.bar(i, bar["mean"], width=0.6, color=color, yerr=error, capsize=6)
+            if bar["n"]:
+                text = f"{bar['mean']:.3f} (n={bar['n']})"
+                bars.text(i, bar["mean"] + error, text, ha="center", va="bottom", fontsize=11)
+        for ax, _, y_text in panels:
+            ax.set_xlim(*x_range)
+            ax.set_ylim(0, y_max)
+            ax.set_xlabel(x_text)
+            ax.set_ylabel(y_text)
+            ax.legend(loc="best", framealpha=0.0)
+        bars.set_xticks(range(len(labels)), labels)
+        bars.set_xlim(-0.7, max(len(labels), 2) - 0.3)
+        bars.set_ylim(0, y_max)
+        low, high = (f"{v:g}" for v in bar_range)
+        bars.set_ylabel("Mean score, final 5 evaluations")
+        bars.set_title(f"Averaged over the runs with {x_label} in [{low}, {high}]", fontsize=11)
+        if title:
+            fig.suptitle(title)
+        fig.savefig(out, dpi=100)
+        plt.close(fig)
+
+
+def summary_table(tables: list[dict], labels: list[str], bar_range: tuple[float, float]) -> str:
+    """A markdown table: runs, the bar's mean (+- standard error) and the all-evaluations mean."""
+    low, high = (f"{v:g}" for v in bar_range)
+    lines = [
+        f"| configuration | runs ok/all | score (final 5), lr in [{low}, {high}] "
+        "| score (all evaluations), same runs |",
+        "|---|---|---|---|",
+    ]
+    for table, label in zip(tables, labels, strict=True):
+        bar = bar_value(table["values"], table["score"], bar_range)
+        all_evals = bar_value(table["values"], table["score_all"], bar_range)
+        sem = f" +- {bar['sem']:.3f}" if bar["n"] > 1 else ""
+        lines.append(
+            f"| {label} | {table['ok']}/{table['runs']} | {bar['mean']:.3f}{sem} (n={bar['n']}) "
+            f"| {all_evals['mean']:.3f} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="plot_sweep.py",
+        description="Plot sweep results tables (agents/sweep.py) in the thesis's style.",
+    )
+    parser.add_argument("tables", nargs="+", help="results.csv files, one per configuration")
+    parser.add_argument(
+        "--labels",
+        nargs="+",
+        default=None,
+        help="one label per table (default: each table's folder name)",
+    )
+    parser.add_argument("--out", default="sweep.png", help="the PNG to write")
+    parser.add_argument("--x", default="learning-rate", help="the swept column (x axis)")
+    parser.add_argument("--linear-x", action="store_true", help="plot x itself, not log10(x)")
+    parser.add_argument(
+        "--xrange",
+        nargs=2,
+        type=float,
+        default=None,
+        metavar=("LOW", "HIGH"),
+        help="x axis range (default: the whole decades around the data, -6 -2 "
+        "for the thesis's sweeps)",
+    )
+    parser.add_argument(
+        "--bar-range",
+        nargs=2,
+        type=float,
+        default=(1e-5, 1e-2),
+        metavar=("LOW", "HIGH"),
+        help="x values averaged in the bar chart (default: 1e-5 1e-2)",
+    )
+    parser.add_argument("--title", default=None)
+    args = parser.parse_args(argv)
+    labels = args.labels or [Path(t).resolve().parent.name for t in args.tables]
+    if len(labels) != len(args.tables):
+        print(f"error: {len(args.tables)} tables but {len(labels)} labels", file=sys.stderr)
+        return 2
+    try:
+        tables = [read_table(t, args.x) for t in args.tables]
+    except (OSError, ValueError, KeyError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    log_x = not args.linear_x
+    values = np.concatenate([t["values"] for t in tables])
+    if args.xrange:
+        x_range = tuple(args.xrange)
+    elif values.size == 0:
+        x_range = (-6.0, -2.0) if log_x else (0.0, 1.0)
+    elif log_x:  # whole decades around the data: -6 -2 for the thesis's sweeps
+        x_range = (math.floor(np.log10(values.min())), math.ceil(np.log10(values.max())))
+    else:
+        x_range = (float(values.min()), float(values.max()))
+    plot(
+        tables,
+        labels,
+        args.out,
+        x_label=args.x,
+        x_range=x_range,
+        bar_range=tuple(args.bar_range),
+        title=args.title,
+        log_x=log_x,
+    )
+    print(summary_table(tables, labels, tuple(args.bar_range)))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,590 @@
+"""Tests of agents/sweep.py and agents/plot_sweep.py.
+
+Most use a fake agent script written into tmp_path (no torch, a fraction of a second per run):
+it writes an evaluations.csv whose returns follow from its learning rate, fails above a learning
+rate, and can be held running to test interrupts. Two tiny sweeps of the real agents/a3c_ff.py
+check the local and the Ray backend end to end.
+"""
+
+import csv
+import importlib.util
+import math
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SWEEP = ROOT / "agents" / "sweep.py"
+PLOT = ROOT / "agents" / "plot_sweep.py"
+A3C = ROOT / "agents" / "a3c_ff.py"
+LR = "learning-rate=loguniform:1e-6:1e-2"
+CONFIG = {"samples": [LR], "fixed_flags": [], "seed": 1, "total_timesteps": None}
+
+
+def load(path: Path):
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+sweep = load(SWEEP)
+plot_sweep = load(PLOT)
+
+FAKE_AGENT = textwrap.dedent(
+    """
+    import argparse, math, os, signal, sys, time
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--learning-rate", type=float, default=1e-3)
+    parser.add_argument("--total-timesteps", type=int, default=700)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--run-dir", required=True)
+    parser.add_argument("--num-workers", type=int, default=1)
+    parser.add_argument("--fail-above", type=float, default=math.inf)
+    parser.add_argument("--hold", default=None, help="wait while this file exists")
+    args = parser.parse_args()
+    here = os.path.dirname(os.path.abspath(__file__))
+    with open(os.path.join(here, "starts.log"), "a") as f:
+        f.write(f"{os.path.basename(args.run_dir)} {os.getpid()}\\n")
+    open(os.path.join(args.run_dir, f"attempt-{os.getpid()}"), "w").close()
+    stopped = []
+    signal.signal(signal.SIGINT, lambda *_: stopped.append("SIGINT"))
+    while args.hold and os.path.exists(args.hold) and not stopped:
+        time.sleep(0.02)
+    if stopped:
+        print("stopped by SIGINT: checkpoint written")
+        sys.exit(0)
+    if args.learning_rate > args.fail_above:
+        print("Traceback ...\\nerror: diverged", file=sys.stderr)
+        sys.exit(1)
+    level = min(1.0, -math.log10(args.learning_rate) / 6)
+    with open(os.path.join(args.run_dir, "evaluations.csv"), "w") as f:
+        f.write("global_step,wall_time_s,mean_return,std_return,episodes\\n")
+        for i in range(8):  # returns level * i / 7 at steps 0, 100, ..., 700
+            f.write(f"{i * args.total_timesteps // 7},0.1,{level * i / 7},0.0,5\\n")
+    print(f"done: final eval {level:.3f}")
+    """
+)
+
+
+def fake_scores(learning_rate: float) -> tuple[float, float]:
+    """The fake agent's (score, score_all): returns level * i / 7, i = 0..7; the final 5 are
+    i = 3..7 (sum 25), all 8 sum to 28."""
+    level = min(1.0, -math.log10(learning_rate) / 6)
+    return level * 25 / 35, level * 28 / 56
+
+
+@pytest.fixture
+def fake_agent(tmp_path: Path) -> Path:
+    path = tmp_path / "fake_agent.py"
+    path.write_text(FAKE_AGENT)
+    return path
+
+
+def run_sweep(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(SWEEP), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=ROOT,
+    )
+
+
+def read_table(out: Path) -> list[dict]:
+    with open(out / "results.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def starts(fake_agent: Path) -> list[tuple[str, int]]:
+    log = fake_agent.parent / "starts.log"
+    if not log.exists():
+        return []
+    return [(line.split()[0], int(line.split()[1])) for line in log.read_text().splitlines()]
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return not f.read().split(") ")[1].startswith("Z")
+    except FileNotFoundError:
+        return False
+
+
+# ------------------------------------------------------------------------------------------------
+# Sampling, scoring, rows
+# ------------------------------------------------------------------------------------------------
+def test_parse_sample_kinds_and_errors():
+    s = sweep.parse_sample("--learning-rate=loguniform:1e-6:1e-2")
+    assert (s.name, s.kind, s.low, s.high) == ("learning-rate", "loguniform", 1e-6, 1e-2)
+    assert sweep.parse_sample("gamma=uniform:0.9:0.99").kind == "uniform"
+    assert sweep.parse_sample("activation=choice:relu,elu").choices == ("relu", "elu")
+    for bad in [
+        "learning-rate",
+        "lr=normal:0:1",
+        "lr=uniform:1",
+        "lr=uniform:2:1",
+        "lr=loguniform:0:1",
+        "lr=choice:",
+        "seed=uniform:0:1",
+        "lr=uniform:a:b",
+    ]:
+        with pytest.raises(sweep.UsageError):
+            sweep.parse_sample(bad)
+
+
+def test_draw_maps_the_unit_interval_onto_each_distribution():
+    log = sweep.parse_sample("lr=loguniform:1e-6:1e-2")
+    assert [log.draw(u) for u in (0.0, 0.25, 0.5)] == ["1e-06", "1e-05", "0.0001"]
+    assert sweep.parse_sample("g=uniform:2:4").draw(0.75) == "3.5"
+    choice = sweep.parse_sample("a=choice:x,y,z")
+    assert [choice.draw(u) for u in (0.0, 0.34, 0.67, 0.999)] == ["x", "y", "z", "z"]
+
+
+def test_samples_are_reproducible_per_run_and_log_uniform():
+    samples = [sweep.parse_sample(LR), sweep.parse_sample("activation=choice:relu,elu")]
+    first = [sweep.sample_values(samples, 7, i) for i in range(2000)]
+    assert first == [sweep.sample_values(samples, 7, i) for i in range(2000)]
+    assert first[:5] != [sweep.sample_values(samples, 8, i) for i in range(5)]
+    exponents = np.log10([float(v["learning-rate"]) for v in first])
+    assert exponents.min() >= -6 and exponents.max() <= -2
+    # log-uniform: each decade holds a quarter of the draws (binomial sd about 1%)
+    counts = np.histogram(exponents, bins=[-6, -5, -4, -3, -2])[0] / len(exponents)
+    assert np.all(np.abs(counts - 0.25) < 0.04), counts
+    elu = sum(v["activation"] == "elu" for v in first) / len(first)
+    assert abs(elu - 0.5) < 0.04
+
+
+def test_plan_runs_sets_seeds_workers_and_budget():
+    config = {
+        "samples": [LR],
+        "fixed_flags": ["--eval-interval", "100"],
+        "seed": 3,
+        "total_timesteps": 5000,
+    }
+    runs = sweep.plan_runs(config, 3)
+    assert [r.seed for r in runs] == [3, 1003, 2003]
+    assert [r.run_id for r in runs] == ["run-0000", "run-0001", "run-0002"]
+    flags = runs[1].flags
+    assert flags[:2] == ["--eval-interval", "100"]
+    assert sweep.flag_value(flags, "learning-rate") == runs[1].sampled["learning-rate"]
+    assert sweep.flag_value(flags, "num-workers") == "1" and runs[1].workers == 1
+    assert sweep.flag_value(flags, "total-timesteps") == "5000"
+    assert sweep.flag_value(flags, "seed") == "1003"
+    config["fixed_flags"] = ["--num-workers=3"]
+    assert sweep.plan_runs(config, 1)[0].workers == 3
+    assert sweep.flag_value(sweep.plan_runs(config, 1)[0].flags, "num-workers") == "3"
+
+
+def test_score_is_the_mean_of_the_final_5_evaluations():
+    returns = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.0]
+    text = "global_step,wall_time_s,mean_return,std_return,episodes\n" + "".join(
+        f"{i * 50000},1.0,{r},0.0,50\n" for i, r in enumerate(returns)
+    )
+    scores = sweep.score_evaluations(text)
+    assert scores["score"] == pytest.approx((0.4 + 0.6 + 0.8 + 1.0 + 1.0) / 5)
+    assert scores["score_all"] == pytest.approx(4.0 / 7)
+    assert scores["evaluations"] == 7 and scores["final_step"] == "300000"
+    short = sweep.score_evaluations("global_step,mean_return\n0,0.5\n10,1.0\n")
+    assert short["score"] == 0.75  # fewer than 5 evaluations: all of them
+    with pytest.raises(ValueError):
+        sweep.score_evaluations("global_step,wall_time_s,mean_return,std_return,episodes\n")
+
+
+def test_result_rows_for_each_way_a_run_ends():
+    run = sweep.plan_runs(CONFIG, 1)[0]
+    evaluations = "global_step,mean_return\n0,0.25\n"
+    base = {
+        "returncode": 0,
+        "interrupted": False,
+        "wall_time_s": 1.234,
+        "stdout_tail": "done:",
+        "stderr_tail": "",
+        "evaluations_csv": evaluations,
+    }
+    ok = sweep.result_row(run, base)
+    assert (ok["status"], ok["score"], ok["wall_time_s"], ok["error"]) == ("ok", 0.25, 1.23, "")
+    assert ok["learning-rate"] == run.sampled["learning-rate"] and ok["seed"] == 1
+    assert sweep.result_row(run, {**base, "interrupted": True}) is None
+    crashed = sweep.result_row(
+        run, {**base, "returncode": 1, "stderr_tail": "error: worker 0 failed:\nTraceback\nBoom"}
+    )
+    assert crashed["status"] == "failed" and crashed["score"] == ""
+    assert crashed["error"] == "exit code 1: error: worker 0 failed:: Boom"
+    killed = sweep.result_row(run, {**base, "returncode": -9, "stderr_tail": ""})
+    assert killed["error"] == "killed by SIGKILL"
+    stopped = sweep.result_row(run, {**base, "stdout_tail": "step 5\nstopped by SIGTERM: eval"})
+    assert stopped["status"] == "failed" and "stopped by SIGTERM" in stopped["error"]
+    missing = sweep.result_row(run, {**base, "evaluations_csv": None})
+    assert missing["status"] == "failed" and "no evaluations.csv" in missing["error"]
+
+
+# ------------------------------------------------------------------------------------------------
+# The sweep with the fake agent
+# ------------------------------------------------------------------------------------------------
+def test_sweep_records_scores_and_failures(fake_agent, tmp_path):
+    out = tmp_path / "out"
+    result = run_sweep(
+        str(fake_agent),
+        "--out",
+        str(out),
+        "--runs",
+        "6",
+        "--seed",
+        "2",
+        "--sample",
+        LR,
+        "--",
+        "--fail-above",
+        "1e-4",
+    )
+    assert result.returncode == 0, result.stderr
+    rows = read_table(out)
+    assert [r["run_id"] for r in rows] == [f"run-{i:04d}" for i in range(6)]
+    statuses = {r["status"] for r in rows}
+    assert statuses == {"ok", "failed"}, rows  # seed 2 samples learning rates on both sides
+    for row in rows:
+        lr = float(row["learning-rate"])
+        assert f"--learning-rate {row['learning-rate']}" in row["flags"]
+        assert float(row["wall_time_s"]) > 0
+        if lr > 1e-4:
+            assert row["status"] == "failed"
+            assert row["error"] == "exit code 1: error: diverged" and row["score"] == ""
+        else:
+            score, score_all = fake_scores(lr)
+            assert row["status"] == "ok" and row["error"] == ""
+            assert float(row["score"]) == pytest.approx(score)
+            assert float(row["score_all"]) == pytest.approx(score_all)
+            assert row["evaluations"] == "8"
+    assert "failed" in result.stdout and "done:" in result.stdout
+
+
+def test_every_run_failing_exits_1(fake_agent, tmp_path):
+    result = run_sweep(
+        str(fake_agent),
+        "--out",
+        str(tmp_path / "out"),
+        "--runs",
+        "2",
+        "--sample",
+        LR,
+        "--",
+        "--fail-above",
+        "1e-9",
+    )
+    assert result.returncode == 1
+    assert [r["status"] for r in read_table(tmp_path / "out")] == ["failed", "failed"]
+
+
+def test_restart_skips_finished_runs_and_extends(fake_agent, tmp_path):
+    out = str(tmp_path / "out")
+
+    def args(runs: int) -> list[str]:
+        return [str(fake_agent), "--out", out, "--runs", str(runs), "--sample", LR, "--",
+                "--fail-above", "1e-4"]  # fmt: skip
+
+    assert run_sweep(*args(3)).returncode in (0, 1)
+    first = read_table(Path(out))
+    assert run_sweep(*args(5)).returncode in (0, 1)
+    again = run_sweep(*args(5))
+    assert "0 to run" in again.stdout
+    rows = read_table(Path(out))
+    assert rows[:3] == first  # finished runs, failed ones too, are kept as they were
+    assert len(rows) == 5
+    started = [run_id for run_id, _ in starts(fake_agent)]
+    assert sorted(started) == [f"run-{i:04d}" for i in range(5)]  # each run started once
+
+
+def test_restart_with_another_configuration_is_refused(fake_agent, tmp_path):
+    out = str(tmp_path / "out")
+    assert run_sweep(str(fake_agent), "--out", out, "--runs", "1", "--sample", LR).returncode == 0
+    result = run_sweep(
+        str(fake_agent),
+        "--out",
+        out,
+        "--runs",
+        "1",
+        "--sample",
+        "learning-rate=loguniform:1e-5:1e-2",
+    )
+    assert result.returncode == 2
+    assert "another configuration" in result.stderr and "samples" in result.stderr
+    result = run_sweep(str(fake_agent), "--out", out, "--runs", "1", "--sample", LR, "--seed", "9")
+    assert result.returncode == 2 and "seed" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--runs", "0"], "--runs must be >= 1"),
+        (["--sample", "lr=normal:0:1"], "expected NAME=loguniform"),
+        (["--", "--seed", "3"], "the sweep sets it"),
+        (["--address", "auto"], "--address needs --backend ray"),
+    ],
+)
+def test_bad_arguments_exit_2(fake_agent, tmp_path, args, message):
+    result = run_sweep(str(fake_agent), "--out", str(tmp_path / "out"), *args)
+    assert result.returncode == 2
+    assert message in result.stderr
+
+
+def test_dry_run_prints_the_commands(fake_agent, tmp_path):
+    result = run_sweep(
+        str(fake_agent),
+        "--out",
+        str(tmp_path / "out"),
+        "--runs",
+        "2",
+        "--total-timesteps",
+        "500",
+        "--sample",
+        LR,
+        "--dry-run",
+    )
+    assert result.returncode == 0
+    lines = result.stdout.splitlines()
+    assert len(lines) == 2 and "--total-timesteps 500 --seed 1001" in lines[1]
+    assert not (tmp_path / "out").exists()
+
+
+def wait_for_starts(fake_agent: Path, count: int, timeout: float = 30) -> list[tuple[str, int]]:
+    deadline = time.time() + timeout
+    while len(starts(fake_agent)) < count:
+        assert time.time() < deadline, "the runs did not start"
+        time.sleep(0.05)
+    return starts(fake_agent)
+
+
+def test_interrupted_sweep_records_nothing_half_done_and_reruns(fake_agent, tmp_path):
+    out, hold = tmp_path / "out", tmp_path / "hold"
+    hold.touch()
+    command = [
+        sys.executable,
+        str(SWEEP),
+        str(fake_agent),
+        "--out",
+        str(out),
+        "--runs",
+        "3",
+        "--cpus",
+        "2",
+        "--sample",
+        LR,
+        "--",
+        "--hold",
+        str(hold),
+    ]
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT
+    )
+    held = wait_for_starts(fake_agent, 2)  # two at once on 2 CPUs, the third waits
+    process.send_signal(signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=30)
+    assert process.returncode == 130, stderr
+    assert "interrupted" in stdout
+    assert len(starts(fake_agent)) == 2
+    assert not any(alive(pid) for _, pid in held)
+    assert not (out / "results.csv").exists()  # the stopped runs are not recorded
+    for run_id, pid in held:  # the stopped runs' folders are left as they were
+        assert (out / "runs" / run_id / f"attempt-{pid}").exists()
+
+    hold.unlink()
+    result = run_sweep(*command[2:])
+    assert result.returncode == 0, result.stderr
+    assert [r["status"] for r in read_table(out)] == ["ok"] * 3
+    assert sorted(run_id for run_id, _ in starts(fake_agent)) == [
+        "run-0000",
+        "run-0000",
+        "run-0001",
+        "run-0001",
+        "run-0002",
+    ]
+    for run_id, pid in held:  # rerun from scratch: the old attempt's files are gone
+        assert not (out / "runs" / run_id / f"attempt-{pid}").exists()
+
+
+def test_killed_sweep_takes_its_runs_with_it(fake_agent, tmp_path):
+    hold = tmp_path / "hold"
+    hold.touch()
+    command = [
+        sys.executable,
+        str(SWEEP),
+        str(fake_agent),
+        "--out",
+        str(tmp_path / "out"),
+        "--runs",
+        "1",
+        "--sample",
+        LR,
+        "--",
+        "--hold",
+        str(hold),
+    ]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    [(_, pid)] = wait_for_starts(fake_agent, 1)
+    process.kill()
+    process.wait(10)
+    deadline = time.time() + 10
+    while alive(pid) and time.time() < deadline:
+        time.sleep(0.05)
+    assert not alive(pid), "the run outlived its killed sweep"
+
+
+@pytest.mark.parametrize("how", ["stop level", "KeyboardInterrupt"])
+def test_execute_run_stops_its_run_with_sigint(fake_agent, tmp_path, how):
+    """The local backend asks a run to stop through its stop level; a Ray cancel raises
+    KeyboardInterrupt in the task. Both run in threads with SIGINT blocked, as Ray's are: the
+    run must see the SIGINT all the same, and checkpoint and exit well within the grace time."""
+    hold = tmp_path / "hold"
+    hold.touch()
+    run_dir = tmp_path / "run"
+    command = [str(fake_agent), "--hold", str(hold), "--run-dir", str(run_dir)]
+
+    def stop_level() -> int:
+        if not starts(fake_agent):
+            return 0
+        if how == "KeyboardInterrupt":
+            raise KeyboardInterrupt
+        return 1
+
+    results = {}
+
+    def in_thread() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        results["run"] = sweep.execute_run(command, str(run_dir), stop_level)
+
+    thread = threading.Thread(target=in_thread)
+    thread.start()
+    thread.join(60)
+    result = results["run"]
+    assert result["interrupted"] and result["returncode"] == 0, result
+    assert "stopped by SIGINT" in result["stdout_tail"]
+    assert result["wall_time_s"] < sweep.STOP_GRACE_S / 2
+    assert sweep.result_row(sweep.plan_runs(CONFIG, 1)[0], result) is None
+
+
+# ------------------------------------------------------------------------------------------------
+# The plot
+# ------------------------------------------------------------------------------------------------
+def test_savgol_keeps_cubics_and_matches_scipy():
+    x = np.linspace(-3, 2, 20)
+    cubic = 0.5 * x**3 - x**2 + 2 * x - 1
+    np.testing.assert_allclose(plot_sweep.savgol(cubic), cubic, atol=1e-9)
+    noisy = np.random.default_rng(0).normal(size=30)
+    smoothed = plot_sweep.savgol(noisy)
+    assert smoothed.std() < noisy.std()
+    # the window-5 cubic fit at the centre: (-3, 12, 17, 12, -3) / 35
+    assert smoothed[10] == pytest.approx(np.dot([-3, 12, 17, 12, -3], noisy[8:13]) / 35)
+    scipy_signal = pytest.importorskip("scipy.signal")
+    np.testing.assert_allclose(smoothed, scipy_signal.savgol_filter(noisy, 5, 3), atol=1e-12)
+
+
+def test_smooth_curve_interpolates_within_the_data():
+    x = np.array([-5.0, -3.0, -4.0, -4.0, -2.5])
+    y = np.array([0.0, 0.4, 0.1, 0.3, 0.5])  # the two runs at -4 average to 0.2: a line 0.2/decade
+    grid, curve = plot_sweep.smooth_curve(x, y, (-6, -2))
+    assert grid.min() >= -5 and grid.max() <= -2.5 and len(grid) > 20
+    np.testing.assert_allclose(curve, 0.2 * (grid + 5), atol=1e-9)  # a line stays a line
+
+
+def test_bar_value_averages_the_runs_in_range():
+    values = np.array([1e-6, 1e-5, 1e-3, 1e-2, 2e-2])
+    bar = plot_sweep.bar_value(values, np.array([9.0, 0.2, 0.4, 0.6, 9.0]), (1e-5, 1e-2))
+    assert bar["n"] == 3 and bar["mean"] == pytest.approx(0.4)
+    assert bar["sem"] == pytest.approx(0.2 / math.sqrt(3))
+
+
+def test_plot_writes_a_png_and_the_table(fake_agent, tmp_path):
+    tables = []
+    for name, runs in (("a", "8"), ("b", "6")):
+        out = tmp_path / name
+        result = run_sweep(
+            str(fake_agent),
+            "--out",
+            str(out),
+            "--runs",
+            runs,
+            "--seed",
+            "3",
+            "--sample",
+            LR,
+            "--",
+            "--fail-above",
+            "3e-3",
+        )
+        assert result.returncode == 0, result.stderr
+        tables.append(str(out / "results.csv"))
+    png = tmp_path / "sweep.png"
+    result = subprocess.run(
+        [sys.executable, str(PLOT), *tables, "--labels", "FF", "GLPQ", "--out", str(png)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    ok = [r for r in read_table(tmp_path / "a") if r["status"] == "ok"]
+    in_range = [float(r["score"]) for r in ok if 1e-5 <= float(r["learning-rate"]) <= 1e-2]
+    line = next(line for line in result.stdout.splitlines() if line.startswith("| FF |"))
+    assert f"| {len(ok)}/8 | {np.mean(in_range):.3f}" in line
+    assert f"(n={len(in_range)})" in line
+
+
+# ------------------------------------------------------------------------------------------------
+# Tiny sweeps of the real agent, on both backends
+# ------------------------------------------------------------------------------------------------
+TINY_A3C = [
+    "--runs",
+    "3",
+    "--total-timesteps",
+    "1000",
+    "--sample",
+    LR,
+    "--",
+    "--eval-interval",
+    "500",
+    "--eval-episodes",
+    "2",
+]
+
+
+def check_a3c_sweep(out: Path, result: subprocess.CompletedProcess) -> None:
+    assert result.returncode == 0, result.stdout + result.stderr
+    rows = read_table(out)
+    planned = sweep.plan_runs(
+        {"samples": [LR], "fixed_flags": TINY_A3C[7:], "seed": 1, "total_timesteps": 1000}, 3
+    )
+    assert [r["learning-rate"] for r in rows] == [p.sampled["learning-rate"] for p in planned]
+    assert [r["seed"] for r in rows] == ["1", "1001", "2001"]
+    for row in rows:
+        assert row["status"] == "ok", row
+        evaluations = (out / "runs" / row["run_id"] / "evaluations.csv").read_text()
+        expected = sweep.score_evaluations(evaluations)
+        assert float(row["score"]) == pytest.approx(expected["score"])
+        assert int(row["evaluations"]) >= 3 and int(row["final_step"]) >= 1000
+        assert "--num-workers 1" in row["flags"]
+
+
+def test_tiny_a3c_sweep_local(tmp_path):
+    out = tmp_path / "out"
+    check_a3c_sweep(out, run_sweep(str(A3C), "--out", str(out), *TINY_A3C, timeout=300))
+
+
+def test_tiny_a3c_sweep_ray(tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "out"
+    result = run_sweep(
+        str(A3C), "--out", str(out), "--backend", "ray", "--cpus", "2", *TINY_A3C, timeout=300
+    )
+    check_a3c_sweep(out, result)
+    assert "ray: 2 CPUs" in result.stdout
