@@ -187,14 +187,14 @@ class ActorCritic(nn.Module):
     def __init__(self, num_actions: int, args: Args):
         super().__init__()
         activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
-        self.torso = nn.Sequential(
+        self.torso = nn.Sequential(  # in-place activations: fewer allocations, same gradients
             nn.Conv2d(4, 32, 8, stride=4),
-            activation(),
+            activation(inplace=True),
             nn.Conv2d(32, 64, 4, stride=2),
-            activation(),
+            activation(inplace=True),
             nn.Flatten(),
             nn.Linear(64 * 9 * 9, 256),
-            activation(),
+            activation(inplace=True),
         )
         self.policy = nn.Linear(256, num_actions)
         self.value = nn.Linear(256, 1)
@@ -415,6 +415,7 @@ def run_process(name: str, shared: Shared, target, *target_args) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, on_sigterm)
     torch.set_num_threads(1)
+    torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
     keep_freed_memory()
     try:
         target(*target_args)
@@ -430,7 +431,9 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
     env = make_env(args.env)
     model = ActorCritic(env.action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
+    # the frames of the rollout, channels-last like the network's input (see ActorCritic)
     obs_buf = torch.zeros((args.t_max + 1, *env.observation_space.shape), dtype=torch.uint8)
+    obs_buf = obs_buf.contiguous(memory_format=torch.channels_last)
     actions = torch.zeros(args.t_max, dtype=torch.int64)
     rewards = np.zeros(args.t_max, dtype=np.float32)
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
