@@ -42,7 +42,7 @@ class Args:
     exp_name: str = os.path.basename(__file__)[: -len(".py")]
     """the name of this experiment (part of the run name)"""
     seed: int = 1
-    """seed of the experiment; worker i uses seed + i, the evaluator seed + num_workers"""
+    """seed of the experiment: of the initial network and, with its index, of each process"""
     env: str = "Catch-v0"
     """the Gymnasium id: Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4"""
     total_timesteps: int | None = None
@@ -385,6 +385,12 @@ class Shared:
         return int(self.steps.sum()) + int(self.base_step)
 
 
+def process_seed(seed: int, index: int) -> int:
+    """Seed of process `index` (workers 0..N-1, then the evaluator); unlike seed + index, runs
+    with neighbouring --seed values share no worker's random streams."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     torch.manual_seed(seed)
@@ -426,8 +432,9 @@ def run_process(name: str, shared: Shared, target, *target_args) -> None:
 
 def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
     """One actor-learner (Algorithm 1): sync, act t_max steps, one batched update, repeat."""
-    seed_everything(args.seed + worker_id)
-    rng = random.Random(args.seed + worker_id)
+    seed = process_seed(args.seed, worker_id)
+    seed_everything(seed)
+    rng = random.Random(seed)
     env = make_env(args.env)
     model = ActorCritic(env.action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
@@ -437,7 +444,7 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
     actions = torch.zeros(args.t_max, dtype=torch.int64)
     rewards = np.zeros(args.t_max, dtype=np.float32)
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
-    obs, _ = env.reset(seed=args.seed + worker_id)
+    obs, _ = env.reset(seed=seed)
     obs_buf[0].copy_(torch.from_numpy(obs))
     while not shared.evaluator_ready.wait(0.1):  # so that the first evaluation sees step 0
         if terminate_requested or shared.stop.is_set() or os.getppid() != parent_pid:
@@ -516,7 +523,7 @@ def play_episodes(
 def evaluator(shared: Shared, args: Args, run_dir: str, parent_pid: int) -> None:
     """Evaluate a snapshot of the global network every eval_interval global steps (thesis
     protocol: 50 episodes sampling from pi) and once more when training ends."""
-    seed = args.seed + args.num_workers
+    seed = process_seed(args.seed, args.num_workers)
     seed_everything(seed)
     rng = np.random.default_rng(seed)
     video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
@@ -849,7 +856,12 @@ def train(args: Args) -> dict:
 def evaluate(args: Args) -> np.ndarray:
     """Play episodes with a checkpoint's network, print each score and the mean."""
     checkpoint = load_checkpoint(args.evaluate)
-    trained = Args(**checkpoint["args"])
+    try:
+        trained = Args(**checkpoint["args"])
+    except TypeError as e:
+        raise UsageError(
+            f"checkpoint {args.evaluate!r} has other flags than this script: {e}"
+        ) from e
     seed_everything(args.seed)
     video_dir = os.path.join(os.path.dirname(args.evaluate), "videos-evaluate")
     env = make_env(
@@ -858,7 +870,10 @@ def evaluate(args: Args) -> np.ndarray:
         video_dir=video_dir if args.capture_video else None,
     )
     model = ActorCritic(env.action_space.n, trained)
-    model.load_state_dict(checkpoint["model"])
+    try:
+        model.load_state_dict(checkpoint["model"])
+    except RuntimeError as e:
+        raise UsageError(f"checkpoint {args.evaluate!r} does not fit this network: {e}") from e
     scores = []
     for episode in range(args.eval_episodes):
         seed = args.seed + episode
