@@ -406,6 +406,22 @@ def check_config(out: Path, config: dict) -> None:
     _write_atomically(path, json.dumps(config, indent=2) + "\n")
 
 
+def lock_folder(out: Path):
+    """Hold an exclusive lock on out/sweep.lock for as long as the returned file stays open, so
+    that two sweeps cannot write the same folder (no-op where fcntl is missing)."""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    lock = open(out / "sweep.lock", "w")  # noqa: SIM115 (closed when the process exits)
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        raise UsageError(f"another sweep is running in {out}") from None
+    return lock
+
+
 class ResultsTable:
     """out/results.csv: one row per finished run, always whole on disk."""
 
@@ -700,6 +716,7 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
             print(shlex.join(["python", *run.command(args.script, out / RUNS_DIR / run.run_id)]))
         return 0
     check_config(out, config)
+    lock = lock_folder(out)  # noqa: F841 (held until the sweep exits)
     table = ResultsTable(out / TABLE_NAME, names)
     todo = [run for run in runs if not table.finished(run.run_id)]
     cpus = args.cpus or cpu_count()

@@ -412,6 +412,21 @@ def test_interrupted_sweep_records_nothing_half_done_and_reruns(fake_agent, tmp_
         assert not (out / "runs" / run_id / f"attempt-{pid}").exists()
 
 
+def test_a_second_sweep_in_the_same_folder_is_refused(fake_agent, tmp_path):
+    hold = tmp_path / "hold"
+    hold.touch()
+    args = [str(fake_agent), "--out", str(tmp_path / "out"), "--runs", "1", "--sample", LR, "--",
+            "--hold", str(hold)]  # fmt: skip
+    first = subprocess.Popen([sys.executable, str(SWEEP), *args], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)  # fmt: skip
+    wait_for_starts(fake_agent, 1)
+    second = run_sweep(*args)
+    assert second.returncode == 2 and "another sweep is running" in second.stderr
+    hold.unlink()
+    assert first.wait(30) == 0
+    assert len(starts(fake_agent)) == 1
+
+
 def test_killed_sweep_takes_its_runs_with_it(fake_agent, tmp_path):
     hold = tmp_path / "hold"
     hold.touch()
