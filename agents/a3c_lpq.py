@@ -42,7 +42,7 @@ class Args:
     exp_name: str = os.path.basename(__file__)[: -len(".py")]
     """the name of this experiment (part of the run name)"""
     seed: int = 1
-    """seed of the experiment; worker i uses seed + i, the evaluator seed + num_workers"""
+    """seed of the experiment: of the initial network and, with its index, of each process"""
     env: str = "Catch-v0"
     """the Gymnasium id: Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4"""
     total_timesteps: int | None = None
@@ -254,14 +254,14 @@ class ActorCritic(nn.Module):
     def __init__(self, num_actions: int, args: Args):
         super().__init__()
         activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
-        self.torso = nn.Sequential(
+        self.torso = nn.Sequential(  # in-place activations: fewer allocations, same gradients
             nn.Conv2d(4, 32, 8, stride=4),
-            activation(),
+            activation(inplace=True),
             nn.Conv2d(32, 64, 4, stride=2),
-            activation(),
+            activation(inplace=True),
             nn.Flatten(),
             nn.Linear(64 * 9 * 9, 256),
-            activation(),
+            activation(inplace=True),
         )
         self.value = nn.Linear(256, 1)
         self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
@@ -396,9 +396,10 @@ class SharedRMSprop:
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
         torch._foreach_mul_(self.square_avg, self.decay)
         torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
-        denom = torch._foreach_add(self.square_avg, self.eps)
-        torch._foreach_sqrt_(denom)
-        torch._foreach_addcdiv_(self.params, grads, denom, value=-lr)
+        # g * rsqrt(ms + eps): on CPU about 2x faster than sqrt and a division
+        inv_rms = torch._foreach_add(self.square_avg, self.eps)
+        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_addcmul_(self.params, grads, inv_rms, value=-lr)
 
     def state_dict(self) -> dict:
         return {"square_avg": [s.clone() for s in self.square_avg]}
@@ -424,10 +425,12 @@ class SharedAdam:
         torch._foreach_lerp_(self.exp_avg, grads, 1.0 - self.beta1)
         torch._foreach_mul_(self.exp_avg_sq, self.beta2)
         torch._foreach_addcmul_(self.exp_avg_sq, grads, grads, value=1.0 - self.beta2)
-        denom = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
-        torch._foreach_add_(denom, self.eps)
-        torch._foreach_sqrt_(denom)
-        torch._foreach_addcdiv_(self.params, self.exp_avg, denom, value=-lr / (1.0 - self.beta1**t))
+        inv_rms = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
+        torch._foreach_add_(inv_rms, self.eps)
+        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_addcmul_(
+            self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)
+        )
 
     def state_dict(self) -> dict:
         return {
@@ -477,6 +480,12 @@ class Shared:
         return int(self.steps.sum()) + int(self.base_step)
 
 
+def process_seed(seed: int, index: int) -> int:
+    """Seed of process `index` (workers 0..N-1, then the evaluator); unlike seed + index, runs
+    with neighbouring --seed values share no worker's random streams."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     torch.manual_seed(seed)
@@ -518,16 +527,19 @@ def run_process(name: str, shared: Shared, target, *target_args) -> None:
 
 def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
     """One actor-learner (Algorithm 1): sync, act t_max steps, one batched update, repeat."""
-    seed_everything(args.seed + worker_id)
-    rng = random.Random(args.seed + worker_id)
+    seed = process_seed(args.seed, worker_id)
+    seed_everything(seed)
+    rng = random.Random(seed)
     env = make_env(args.env)
     model = ActorCritic(env.action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
+    # the frames of the rollout, channels-last like the network's input (see ActorCritic)
     obs_buf = torch.zeros((args.t_max + 1, *env.observation_space.shape), dtype=torch.uint8)
+    obs_buf = obs_buf.contiguous(memory_format=torch.channels_last)
     actions = torch.zeros(args.t_max, dtype=torch.int64)
     rewards = np.zeros(args.t_max, dtype=np.float32)
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
-    obs, _ = env.reset(seed=args.seed + worker_id)
+    obs, _ = env.reset(seed=seed)
     obs_buf[0].copy_(torch.from_numpy(obs))
     while not shared.evaluator_ready.wait(0.1):  # so that the first evaluation sees step 0
         if terminate_requested or shared.stop.is_set() or os.getppid() != parent_pid:
@@ -606,7 +618,7 @@ def play_episodes(
 def evaluator(shared: Shared, args: Args, run_dir: str, parent_pid: int) -> None:
     """Evaluate a snapshot of the global network every eval_interval global steps (thesis
     protocol: 50 episodes sampling from pi) and once more when training ends."""
-    seed = args.seed + args.num_workers
+    seed = process_seed(args.seed, args.num_workers)
     seed_everything(seed)
     rng = np.random.default_rng(seed)
     video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
@@ -939,7 +951,12 @@ def train(args: Args) -> dict:
 def evaluate(args: Args) -> np.ndarray:
     """Play episodes with a checkpoint's network, print each score and the mean."""
     checkpoint = load_checkpoint(args.evaluate)
-    trained = Args(**checkpoint["args"])
+    try:
+        trained = Args(**checkpoint["args"])
+    except TypeError as e:
+        raise UsageError(
+            f"checkpoint {args.evaluate!r} has other flags than this script: {e}"
+        ) from e
     seed_everything(args.seed)
     video_dir = os.path.join(os.path.dirname(args.evaluate), "videos-evaluate")
     env = make_env(
@@ -948,7 +965,10 @@ def evaluate(args: Args) -> np.ndarray:
         video_dir=video_dir if args.capture_video else None,
     )
     model = ActorCritic(env.action_space.n, trained)
-    model.load_state_dict(checkpoint["model"])
+    try:
+        model.load_state_dict(checkpoint["model"])
+    except RuntimeError as e:
+        raise UsageError(f"checkpoint {args.evaluate!r} does not fit this network: {e}") from e
     scores = []
     for episode in range(args.eval_episodes):
         seed = args.seed + episode
