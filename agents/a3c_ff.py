@@ -6,7 +6,6 @@
 # checkpoints and watches the others; N workers act and learn Hogwild-style (no locks); one
 # evaluator process plays the evaluation episodes without stopping the workers.
 import csv
-import ctypes
 import math
 import os
 import random
@@ -399,17 +398,6 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def keep_freed_memory() -> None:
-    """Ask glibc to keep freed memory instead of returning it to the OS: every update allocates
-    tensors of the FC weight's size (5 MB), and page-faulting them in again costs ~5%."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:  # not glibc
-        return
-    libc.mallopt(-3, 256 << 20)  # M_MMAP_THRESHOLD: serve blocks below 256 MB from the heap
-    libc.mallopt(-1, 1 << 30)  # M_TRIM_THRESHOLD: keep up to 1 GB of free heap
-
-
 terminate_requested = False  # set by SIGTERM in a worker or the evaluator
 
 
@@ -425,7 +413,6 @@ def run_process(name: str, shared: Shared, target, *target_args) -> None:
     signal.signal(signal.SIGTERM, on_sigterm)
     torch.set_num_threads(1)
     torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
-    keep_freed_memory()
     try:
         target(*target_args)
     except BaseException:
@@ -444,7 +431,7 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
     # the frames of the rollout, channels-last like the network's input (see ActorCritic)
     obs_buf = torch.zeros((args.t_max + 1, *env.observation_space.shape), dtype=torch.uint8)
     obs_buf = obs_buf.contiguous(memory_format=torch.channels_last)
-    actions = torch.zeros(args.t_max, dtype=torch.int64)
+    actions = np.zeros(args.t_max, dtype=np.int64)  # NumPy: cheaper to write one by one
     rewards = np.zeros(args.t_max, dtype=np.float32)
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
     obs, _ = env.reset(seed=seed)
@@ -480,7 +467,12 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
         bootstrap = 0.0 if terminated else float(values[n])
         returns = torch.from_numpy(n_step_returns(rewards[:n], bootstrap, args.gamma))
         loss, policy_loss, value_loss, entropy = a3c_loss(
-            log_probs[:n], actions[:n], values[:n], returns, args.ent_coef, args.vf_coef
+            log_probs[:n],
+            torch.from_numpy(actions[:n]),
+            values[:n],
+            returns,
+            args.ent_coef,
+            args.vf_coef,
         )
         grads = torch.autograd.grad(loss, params)
         grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
