@@ -17,6 +17,7 @@ import argparse
 import importlib.util
 import os
 import platform
+import resource
 import sys
 import tempfile
 import time
@@ -108,7 +109,14 @@ def baseline_worker(a3c, worker_id, global_model, square_avg, steps, stop, args)
             obs, _ = env.reset()
 
 
-def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> float:
+def children_cpu_seconds() -> float:
+    """CPU time of this process's finished children (the workers, once joined)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> tuple[float, float]:
+    """Returns (steps/s after the warm-up, total steps / worker CPU-seconds * num_workers)."""
     args = a3c.resolve_defaults(a3c.Args(num_workers=num_workers))
     global_model = a3c.ActorCritic(3, args)
     global_model.share_memory()
@@ -116,6 +124,7 @@ def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> float:
     steps = torch.zeros(num_workers, dtype=torch.int64).share_memory_()
     ctx = mp.get_context("fork")
     stop = ctx.Event()
+    cpu_before = children_cpu_seconds()
     workers = [
         ctx.Process(target=baseline_worker,
                     args=(a3c, i, global_model, square_avg, steps, stop, args), daemon=True)
@@ -132,16 +141,20 @@ def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> float:
         w.join(10)
         if w.exitcode != 0:
             raise RuntimeError(f"baseline worker exited with {w.exitcode}")
-    return sps
+    per_cpu = int(steps.sum()) / (children_cpu_seconds() - cpu_before) * num_workers
+    return sps, per_cpu
 
 
-def run_a3c_ff(a3c, num_workers: int, seconds: float) -> float:
+def run_a3c_ff(a3c, num_workers: int, seconds: float) -> tuple[float, float]:
+    """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers)."""
     with tempfile.TemporaryDirectory() as run_dir:
         args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir,
                         log_interval=max(5.0, seconds / 4))  # fmt: skip
         args.total_timesteps = 10**9  # the time limit ends the run
+        cpu_before = children_cpu_seconds()
         summary = a3c.train(a3c.resolve_defaults(args))
-    return summary["sps"]
+    per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
+    return summary["sps"], per_cpu
 
 
 def main() -> None:
@@ -178,13 +191,16 @@ def main() -> None:
     if not opts.no_baseline:
         print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
         results["baseline"] = run_baseline(a3c, num_workers, opts.seconds, warmup=3.0)
-        print(f"baseline: {results['baseline']:,.0f} steps/s", flush=True)
+        sps, per_cpu = results["baseline"]
+        print(f"baseline: {sps:,.0f} steps/s ({per_cpu:,.0f} per {num_workers} CPU-seconds)")
     print(f"load average {os.getloadavg()[0]:.2f}; a3c_ff ...", flush=True)
     results["a3c_ff"] = run_a3c_ff(a3c, num_workers, opts.seconds)
-    line = f"a3c_ff: {results['a3c_ff']:,.0f} global env steps/s"
-    line += f" ({results['a3c_ff'] / bound:.0%} of the matmul bound"
+    sps, per_cpu = results["a3c_ff"]
+    line = f"a3c_ff: {sps:,.0f} global env steps/s ({per_cpu:,.0f} per {num_workers} CPU-seconds"
+    line += f", {per_cpu / bound:.0%} of the matmul bound"
     if "baseline" in results:
-        line += f", {results['a3c_ff'] / results['baseline']:.2f}x the baseline"
+        line += f"; {sps / results['baseline'][0]:.2f}x the baseline"
+        line += f", {per_cpu / results['baseline'][1]:.2f}x per CPU-second"
     print(line + ")")
 
 
