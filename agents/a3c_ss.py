@@ -6,7 +6,6 @@
 # checkpoints and watches the others; N workers act and learn Hogwild-style (no locks); one
 # evaluator process plays the evaluation episodes without stopping the workers.
 import csv
-import ctypes
 import math
 import os
 import random
@@ -42,7 +41,7 @@ class Args:
     exp_name: str = os.path.basename(__file__)[: -len(".py")]
     """the name of this experiment (part of the run name)"""
     seed: int = 1
-    """seed of the experiment; worker i uses seed + i, the evaluator seed + num_workers"""
+    """seed of the experiment: of the initial network and, with its index, of each process"""
     env: str = "Catch-v0"
     """the Gymnasium id: Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4"""
     total_timesteps: int | None = None
@@ -225,13 +224,13 @@ class ActorCritic(nn.Module):
     def __init__(self, num_actions: int, args: Args):
         super().__init__()
         activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
-        self.torso = nn.Sequential(
+        self.torso = nn.Sequential(  # in-place activations: fewer allocations, same gradients
             nn.Conv2d(4, 32, 5, stride=3),  # 84 -> 27
-            activation(),
+            activation(inplace=True),
             nn.Conv2d(32, 64, 3, stride=2),  # 27 -> 13, no activation: the softmax follows
             SpatialSoftmax(64, 13, args),
             nn.Linear(2 * 64, 256),
-            activation(),
+            activation(inplace=True),
         )
         self.policy = nn.Linear(256, num_actions)
         self.value = nn.Linear(256, 1)
@@ -341,9 +340,10 @@ class SharedRMSprop:
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
         torch._foreach_mul_(self.square_avg, self.decay)
         torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
-        denom = torch._foreach_add(self.square_avg, self.eps)
-        torch._foreach_sqrt_(denom)
-        torch._foreach_addcdiv_(self.params, grads, denom, value=-lr)
+        # g * rsqrt(ms + eps): on CPU about 2x faster than sqrt and a division
+        inv_rms = torch._foreach_add(self.square_avg, self.eps)
+        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_addcmul_(self.params, grads, inv_rms, value=-lr)
 
     def state_dict(self) -> dict:
         return {"square_avg": [s.clone() for s in self.square_avg]}
@@ -369,10 +369,12 @@ class SharedAdam:
         torch._foreach_lerp_(self.exp_avg, grads, 1.0 - self.beta1)
         torch._foreach_mul_(self.exp_avg_sq, self.beta2)
         torch._foreach_addcmul_(self.exp_avg_sq, grads, grads, value=1.0 - self.beta2)
-        denom = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
-        torch._foreach_add_(denom, self.eps)
-        torch._foreach_sqrt_(denom)
-        torch._foreach_addcdiv_(self.params, self.exp_avg, denom, value=-lr / (1.0 - self.beta1**t))
+        inv_rms = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
+        torch._foreach_add_(inv_rms, self.eps)
+        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_addcmul_(
+            self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)
+        )
 
     def state_dict(self) -> dict:
         return {
@@ -422,20 +424,15 @@ class Shared:
         return int(self.steps.sum()) + int(self.base_step)
 
 
+def process_seed(seed: int, index: int) -> int:
+    """Seed of process `index` (workers 0..N-1, then the evaluator); unlike seed + index, runs
+    with neighbouring --seed values share no worker's random streams."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
 def seed_everything(seed: int) -> None:
     random.seed(seed)
     torch.manual_seed(seed)
-
-
-def keep_freed_memory() -> None:
-    """Ask glibc to keep freed memory instead of returning it to the OS: every update allocates
-    tensors of the FC weight's size (5 MB), and page-faulting them in again costs ~5%."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:  # not glibc
-        return
-    libc.mallopt(-3, 256 << 20)  # M_MMAP_THRESHOLD: serve blocks below 256 MB from the heap
-    libc.mallopt(-1, 1 << 30)  # M_TRIM_THRESHOLD: keep up to 1 GB of free heap
 
 
 terminate_requested = False  # set by SIGTERM in a worker or the evaluator
@@ -453,7 +450,6 @@ def run_process(name: str, shared: Shared, target, *target_args) -> None:
     signal.signal(signal.SIGTERM, on_sigterm)
     torch.set_num_threads(1)
     torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
-    keep_freed_memory()
     try:
         target(*target_args)
     except BaseException:
@@ -463,16 +459,19 @@ def run_process(name: str, shared: Shared, target, *target_args) -> None:
 
 def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
     """One actor-learner (Algorithm 1): sync, act t_max steps, one batched update, repeat."""
-    seed_everything(args.seed + worker_id)
-    rng = random.Random(args.seed + worker_id)
+    seed = process_seed(args.seed, worker_id)
+    seed_everything(seed)
+    rng = random.Random(seed)
     env = make_env(args.env)
     model = ActorCritic(env.action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
+    # the frames of the rollout, channels-last like the network's input (see ActorCritic)
     obs_buf = torch.zeros((args.t_max + 1, *env.observation_space.shape), dtype=torch.uint8)
-    actions = torch.zeros(args.t_max, dtype=torch.int64)
+    obs_buf = obs_buf.contiguous(memory_format=torch.channels_last)
+    actions = np.zeros(args.t_max, dtype=np.int64)  # NumPy: cheaper to write one by one
     rewards = np.zeros(args.t_max, dtype=np.float32)
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
-    obs, _ = env.reset(seed=args.seed + worker_id)
+    obs, _ = env.reset(seed=seed)
     obs_buf[0].copy_(torch.from_numpy(obs))
     while not shared.evaluator_ready.wait(0.1):  # so that the first evaluation sees step 0
         if terminate_requested or shared.stop.is_set() or os.getppid() != parent_pid:
@@ -505,7 +504,12 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
         bootstrap = 0.0 if terminated else float(values[n])
         returns = torch.from_numpy(n_step_returns(rewards[:n], bootstrap, args.gamma))
         loss, policy_loss, value_loss, entropy = a3c_loss(
-            log_probs[:n], actions[:n], values[:n], returns, args.ent_coef, args.vf_coef
+            log_probs[:n],
+            torch.from_numpy(actions[:n]),
+            values[:n],
+            returns,
+            args.ent_coef,
+            args.vf_coef,
         )
         grads = torch.autograd.grad(loss, params)
         grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
@@ -551,7 +555,7 @@ def play_episodes(
 def evaluator(shared: Shared, args: Args, run_dir: str, parent_pid: int) -> None:
     """Evaluate a snapshot of the global network every eval_interval global steps (thesis
     protocol: 50 episodes sampling from pi) and once more when training ends."""
-    seed = args.seed + args.num_workers
+    seed = process_seed(args.seed, args.num_workers)
     seed_everything(seed)
     rng = np.random.default_rng(seed)
     video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
@@ -884,7 +888,12 @@ def train(args: Args) -> dict:
 def evaluate(args: Args) -> np.ndarray:
     """Play episodes with a checkpoint's network, print each score and the mean."""
     checkpoint = load_checkpoint(args.evaluate)
-    trained = Args(**checkpoint["args"])
+    try:
+        trained = Args(**checkpoint["args"])
+    except TypeError as e:
+        raise UsageError(
+            f"checkpoint {args.evaluate!r} has other flags than this script: {e}"
+        ) from e
     seed_everything(args.seed)
     video_dir = os.path.join(os.path.dirname(args.evaluate), "videos-evaluate")
     env = make_env(
@@ -893,7 +902,10 @@ def evaluate(args: Args) -> np.ndarray:
         video_dir=video_dir if args.capture_video else None,
     )
     model = ActorCritic(env.action_space.n, trained)
-    model.load_state_dict(checkpoint["model"])
+    try:
+        model.load_state_dict(checkpoint["model"])
+    except RuntimeError as e:
+        raise UsageError(f"checkpoint {args.evaluate!r} does not fit this network: {e}") from e
     scores = []
     for episode in range(args.eval_episodes):
         seed = args.seed + episode
