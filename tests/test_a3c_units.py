@@ -236,3 +236,20 @@ def test_annealed_lr(a3c):
     assert a3c.annealed_lr(args, 2000) == 0.0
     args.anneal_lr = False
     assert a3c.annealed_lr(args, 250) == pytest.approx(1e-3)
+
+
+def test_worker_learns_in_process_and_keeps_no_autograd_history(a3c):
+    import os
+
+    import catch_env  # noqa: F401
+
+    args = a3c.resolve_defaults(a3c.Args(num_workers=1, total_timesteps=300))
+    shared = a3c.Shared(args, 3, multiprocessing.get_context("fork"))
+    shared.evaluator_ready.set()
+    before = [p.detach().clone() for p in shared.params]
+    a3c.worker(0, shared, args, os.getppid())
+    assert 300 <= shared.global_step() < 300 + args.t_max
+    assert shared.stats[0, 0] >= 300 // 15  # Catch episodes are 15 steps
+    assert not any(torch.equal(p, q) for p, q in zip(before, shared.params, strict=True))
+    # logging the losses must not chain each rollout's graph onto the stats (a memory leak)
+    assert shared.stats.grad_fn is None and not shared.stats.requires_grad
