@@ -470,12 +470,14 @@ def evaluation_steps(run_dir: Path) -> list[int]:
 
 
 @pytest.mark.parametrize("name", VARIANTS)
-def test_variant_runs_on_catch_and_evaluates_its_checkpoint(tmp_path, name):
+def test_variant_runs_on_catch(tmp_path, name):
     result = run(name, *TINY, "--total-timesteps", "1000", "--run-dir", str(tmp_path))
     assert result.returncode == 0, result.stderr
     steps = evaluation_steps(tmp_path)
     assert steps[0] == 0 and steps[-1] >= 1000 and len(steps) >= 3
     assert result.stdout.strip().splitlines()[-1].startswith("done: final eval")
+    if name not in ("a3c_lws", "a3c_lstm"):
+        return  # --evaluate is a3c_ff's code; LWS's buffers and LSTM's states are checked here
     result = run(name, "--evaluate", str(tmp_path / "checkpoint.pt"), "--eval-episodes", "3")
     assert result.returncode == 0, result.stderr
     assert len(re.findall(r"^episode \d: score [01]$", result.stdout, re.M)) == 3
