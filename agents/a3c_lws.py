@@ -211,6 +211,7 @@ class LWSConv2d(nn.Module):
         maps = out_channels if args.lws_centroids == "feature" else 1
         centroids = torch.rand(self.kcps, maps, 2, generator=generator)
         sigma = torch.eye(2)
+        self.cached_for: tuple[torch.Tensor, torch.Tensor] | None = None  # see similarity_weights
         if args.lws_trainable:
             self.centroids, self.sigma = nn.Parameter(centroids), nn.Parameter(sigma)
         else:
@@ -220,12 +221,25 @@ class LWSConv2d(nn.Module):
     def similarity_weights(self) -> torch.Tensor:
         """S_s / sum_s' S_s' as (H, W, S, maps): the conv output's channels_last order. At every
         output cell they sum to 1 over s."""
-        rows = (self.axis[:, None, None] - self.centroids[..., 0])[:, None]  # i - i_s (H, 1, S, m)
-        cols = self.axis[:, None, None] - self.centroids[..., 1]  # j - j_s (W, S, maps)
+        if torch.is_grad_enabled():
+            return self.compute_similarity_weights()
+        # acting: the centroids and Sigma change once per rollout (the sync), not per step, so
+        # reuse the weights while both equal those they were computed from
+        cached_for = self.cached_for
+        if cached_for is None or not (
+            torch.equal(cached_for[0], self.centroids) and torch.equal(cached_for[1], self.sigma)
+        ):
+            self.cached_for = (self.centroids.clone(), self.sigma.clone())
+            self.cached_weights = self.compute_similarity_weights()
+        return self.cached_weights
+
+    def compute_similarity_weights(self) -> torch.Tensor:
+        centroid_rows, centroid_cols = self.centroids.unbind(-1)  # i_s, j_s: (S, maps) each
+        rows = (self.axis[:, None, None] - centroid_rows)[:, None]  # i - i_s: (H, 1, S, maps)
+        cols = self.axis[:, None, None] - centroid_cols  # j - j_s: (W, S, maps)
         # (x - mu_s)^T Sigma (x - mu_s), expanded: 7x faster than an einsum over (H, W, S, m, 2)
-        sigma = self.sigma
-        distance = (sigma[0, 0] * rows.square() + (sigma[0, 1] + sigma[1, 0]) * rows * cols
-                    + sigma[1, 1] * cols.square())  # fmt: skip
+        (s00, s01), (s10, s11) = self.sigma
+        distance = s00 * rows.square() + (s01 + s10) * rows * cols + s11 * cols.square()
         # exp(-d_s) / sum_s' exp(-d_s') is a softmax over s; softmax cannot overflow
         return torch.softmax(-distance, dim=2)
 
@@ -548,7 +562,11 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
 
         shared.steps[worker_id] += n
         stats[3] += 1
-        stats[4:8] += torch.stack([policy_loss, value_loss, entropy, torch.tensor(grad_norm)])
+        # Python floats: adding the loss tensors themselves would chain every rollout's autograd
+        # graph onto stats, a memory leak
+        stats[4:8] += torch.tensor(
+            [policy_loss.item(), value_loss.item(), entropy.item(), grad_norm]
+        )
         shared.stats[worker_id].copy_(stats)
         if terminated or truncated:
             obs, _ = env.reset()

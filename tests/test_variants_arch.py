@@ -131,6 +131,23 @@ def test_lws_far_apart_centroids_give_each_region_its_own_kernel(lws):
     assert not torch.allclose(per_kernel[:, 0], per_kernel[:, 1])
 
 
+def test_lws_acting_reuses_weights_only_while_centroids_and_sigma_are_unchanged(lws):
+    torch.manual_seed(9)
+    layer = lws_layer(lws, kcps=3)
+    x = torch.rand(1, 4, 84, 84) * 255
+    with torch.inference_mode():
+        before = layer(x)
+        torch.testing.assert_close(layer(x), before)
+    with torch.no_grad():  # as the worker's sync does: in place
+        layer.centroids.copy_(torch.rand(3, 32, 2))
+        layer.sigma.copy_(torch.tensor([[2.0, 0.3], [0.1, 0.5]]))
+    expected = layer(x)  # with autograd on: computed afresh
+    with torch.inference_mode():
+        after = layer(x)
+    torch.testing.assert_close(after, expected)
+    assert not torch.allclose(after, before)
+
+
 def test_lws_feature_wise_centroids_are_per_map(lws):
     layer = lws_layer(lws, kcps=2, centroids="feature", out_channels=2)
     # map 0 is near pair 0 everywhere, map 1 near pair 1 everywhere
