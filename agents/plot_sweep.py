@@ -161,7 +161,7 @@ def plot(
             ax.set_ylabel(y_text)
             ax.legend(loc="best", framealpha=0.0)
         bars.set_xticks(range(len(labels)), labels)
-        bars.set_xlim(-0.7, max(len(labels), 2) - 0.3)
+        bars.set_xlim(-0.8, len(labels) - 0.2)
         bars.set_ylim(0, y_max)
         low, high = (f"{v:g}" for v in bar_range)
         bars.set_ylabel("Mean score, final 5 evaluations")
