@@ -21,8 +21,8 @@ Runs. Run i (run id run-0000, run-0001, ...) is `python SCRIPT FIXED SAMPLED --t
 script's default). Its sampled values come from a generator seeded with (--seed, i) alone, so a
 sweep started again, or extended with a larger --runs, draws the same values for the same runs.
 Floats are written with 6 significant digits, and that string is both what the run gets and what
-the table records. The seeds of two runs are 1000 apart, so that the worker seeds (seed + worker
-index) of different runs do not overlap.
+the table records. Run seeds are 1000 apart, so that even a script that seeded its workers with
+seed + worker index would give different runs disjoint worker seeds.
 
 Workers per run. A run's CPUs are its --num-workers (fixed or sampled). With none given, the sweep
 passes --num-workers 1 (the scripts' own default is one worker per core, which would let one run
