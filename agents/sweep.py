@@ -407,13 +407,15 @@ def check_config(out: Path, config: dict) -> None:
 
 
 def lock_folder(out: Path):
-    """Hold an exclusive lock on out/sweep.lock for as long as the returned file stays open, so
-    that two sweeps cannot write the same folder (no-op where fcntl is missing)."""
+    """Hold an exclusive lock on out/runs/sweep.lock for as long as the returned file stays
+    open, so that two sweeps cannot write the same folder (no-op where fcntl is missing). It
+    lives in runs/, which the repository's .gitignore leaves out, with the run folders."""
     try:
         import fcntl
     except ImportError:
         return None
-    lock = open(out / "sweep.lock", "w")  # noqa: SIM115 (closed when the process exits)
+    (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
+    lock = open(out / RUNS_DIR / "sweep.lock", "w")  # noqa: SIM115 (closed when the process exits)
     try:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
