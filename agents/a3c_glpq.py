@@ -7,7 +7,6 @@
 # checkpoints and watches the others; N workers act and learn Hogwild-style (no locks); one
 # evaluator process plays the evaluation episodes without stopping the workers.
 import csv
-import ctypes
 import math
 import os
 import random
@@ -563,17 +562,6 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def keep_freed_memory() -> None:
-    """Ask glibc to keep freed memory instead of returning it to the OS: every update allocates
-    tensors of the FC weight's size (5 MB), and page-faulting them in again costs ~5%."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:  # not glibc
-        return
-    libc.mallopt(-3, 256 << 20)  # M_MMAP_THRESHOLD: serve blocks below 256 MB from the heap
-    libc.mallopt(-1, 1 << 30)  # M_TRIM_THRESHOLD: keep up to 1 GB of free heap
-
-
 terminate_requested = False  # set by SIGTERM in a worker or the evaluator
 
 
@@ -589,7 +577,6 @@ def run_process(name: str, shared: Shared, target, *target_args) -> None:
     signal.signal(signal.SIGTERM, on_sigterm)
     torch.set_num_threads(1)
     torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
-    keep_freed_memory()
     try:
         target(*target_args)
     except BaseException:
@@ -655,7 +642,11 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
 
         shared.steps[worker_id] += n
         stats[3] += 1
-        stats[4:8] += torch.stack([policy_loss, value_loss, entropy, torch.tensor(grad_norm)])
+        # Python floats: adding the loss tensors themselves would chain every rollout's autograd
+        # graph onto stats, a memory leak
+        stats[4:8] += torch.tensor(
+            [policy_loss.item(), value_loss.item(), entropy.item(), grad_norm]
+        )
         shared.stats[worker_id].copy_(stats)
         if terminated or truncated:
             obs, _ = env.reset()

@@ -517,7 +517,11 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
 
         shared.steps[worker_id] += n
         stats[3] += 1
-        stats[4:8] += torch.stack([policy_loss, value_loss, entropy, torch.tensor(grad_norm)])
+        # Python floats: adding the loss tensors themselves would chain every rollout's autograd
+        # graph onto stats, a memory leak
+        stats[4:8] += torch.tensor(
+            [policy_loss.item(), value_loss.item(), entropy.item(), grad_norm]
+        )
         shared.stats[worker_id].copy_(stats)
         if terminated or truncated:
             obs, _ = env.reset()
