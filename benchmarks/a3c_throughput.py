@@ -1,20 +1,27 @@
-"""Global env steps per second of agents/a3c_ff.py on Catch-v0, with the default worker count.
+"""Global env steps per second of the agent scripts on Catch-v0, with the default worker count.
 
-    python benchmarks/a3c_throughput.py [--seconds 30] [--num-workers N] [--no-baseline]
+    python benchmarks/a3c_throughput.py [SCRIPT ...] [--seconds 30] [--rounds 1]
+                                        [--num-workers N] [--no-baseline]
 
-It runs a3c_ff's own training loop (evaluations included) for --seconds and reports the steps/s
-after the workers have started. For comparison it first runs a straightforward Hogwild loop of
-the same algorithm and network for as long: load_state_dict to sync, a fresh tensor per step,
-torch.optim-style per-parameter clipping and RMSprop. For context it prints the network's FLOPs
-per env step (acting forward + the step's share of the rollout's forward and backward), this
-machine's single-thread fp32 matmul GFLOP/s, and the steps/s bound they give. Other load on the
-machine lowers every number: the load average is printed before each measurement.
+It runs each script's own training loop (evaluations included) for --seconds and reports the
+steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
+SCRIPTs (e.g. agents/a3c_lws.py) are compared with it: time per step relative to a3c_ff's, from
+the same run. With --rounds R the scripts take turns R times and the means are reported, so that
+slow drifts of a shared machine's speed fall on all of them alike.
+
+For comparison it first runs a straightforward Hogwild loop of A3C FF for as long: load_state_dict
+to sync, a fresh tensor per step, torch.optim-style per-parameter clipping and RMSprop. For
+context it prints each network's FLOPs per env step (acting forward + the step's share of the
+rollout's forward and backward), this machine's single-thread fp32 matmul GFLOP/s, and the
+steps/s bound they give. Other load on the machine lowers every number: the load average is
+printed before each measurement.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import inspect
 import os
 import platform
 import resource
@@ -30,14 +37,21 @@ from torch.utils.flop_counter import FlopCounterMode
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
-SCRIPT = Path(__file__).resolve().parents[1] / "agents" / "a3c_ff.py"
+FF_SCRIPT = Path(__file__).resolve().parents[1] / "agents" / "a3c_ff.py"
 
 
-def load_a3c():
-    spec = importlib.util.spec_from_file_location("a3c_ff", SCRIPT)
+def load_script(path: Path):
+    """Import an agent script as a module named after its file."""
+    name = path.stem
+    if path.suffix != ".py":
+        raise SystemExit(f"{path} is not an A3C agent script (agents/a3c_*.py)")
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
-    sys.modules["a3c_ff"] = module  # dataclasses look their module up by name
+    sys.modules[name] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
+    for attr in ("Args", "ActorCritic", "train", "resolve_defaults"):
+        if not hasattr(module, attr):
+            raise SystemExit(f"{path} is not an A3C agent script: it has no {attr}")
     return module
 
 
@@ -54,16 +68,25 @@ def matmul_gflops(size: int = 1024, seconds: float = 1.0) -> float:
     return best
 
 
+def network_outputs(model, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(log-probs, values) of a batch of states; a recurrent network (a3c_lstm: a `state`
+    argument) sees them as one sequence from its initial state."""
+    if "state" in inspect.signature(model.forward).parameters:
+        log_probs, values, _ = model(obs[:, None], model.initial_state(1))
+        return log_probs[:, 0], values[:, 0]
+    return model(obs)
+
+
 def flops_per_env_step(a3c, t_max: int) -> float:
     """FLOPs of one acting forward plus 1/t_max of a t_max-step training forward and backward."""
-    args = a3c.Args()
+    args = a3c.resolve_defaults(a3c.Args())
     model = a3c.ActorCritic(3, args)
-    params = list(model.parameters())
+    params = [p for p in model.parameters() if p.requires_grad]
     with FlopCounterMode(display=False) as act, torch.inference_mode():
-        model(torch.zeros(1, 4, 84, 84, dtype=torch.uint8))
+        network_outputs(model, torch.zeros(1, 4, 84, 84, dtype=torch.uint8))
     with FlopCounterMode(display=False) as learn:
-        log_probs, values = model(torch.zeros(t_max, 4, 84, 84, dtype=torch.uint8))
-        torch.autograd.grad(log_probs.sum() + values.sum(), params)
+        log_probs, values = network_outputs(model, torch.zeros(t_max, 4, 84, 84, dtype=torch.uint8))
+        torch.autograd.grad(log_probs.sum() + values.sum(), params, allow_unused=True)
     return act.get_total_flops() + learn.get_total_flops() / t_max
 
 
@@ -145,7 +168,7 @@ def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> tuple[
     return sps, per_cpu
 
 
-def run_a3c_ff(a3c, num_workers: int, seconds: float) -> tuple[float, float]:
+def run_script(a3c, num_workers: int, seconds: float) -> tuple[float, float]:
     """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers)."""
     with tempfile.TemporaryDirectory() as run_dir:
         args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir,
@@ -159,14 +182,23 @@ def run_a3c_ff(a3c, num_workers: int, seconds: float) -> tuple[float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("scripts", nargs="*", type=Path, help="scripts to compare with a3c_ff")
     parser.add_argument("--seconds", type=float, default=30.0, help="time per measurement")
+    parser.add_argument("--rounds", type=int, default=1, help="measurements per script")
     parser.add_argument("--num-workers", type=int, default=None, help="default: a3c_ff's")
     parser.add_argument("--no-baseline", action="store_true", help="skip the baseline loop")
     opts = parser.parse_args()
     if opts.seconds <= 0:
         parser.error("--seconds must be > 0")
+    if opts.rounds < 1:
+        parser.error("--rounds must be >= 1")
+    for path in opts.scripts:
+        if not path.is_file():
+            parser.error(f"no such script: {path} (the agents are agents/a3c_*.py)")
     torch.set_num_threads(1)
-    a3c = load_a3c()
+    paths = [FF_SCRIPT] + [p.resolve() for p in opts.scripts if p.resolve() != FF_SCRIPT]
+    scripts = {path.stem: load_script(path) for path in dict.fromkeys(paths)}
+    a3c = scripts["a3c_ff"]
     num_workers = opts.num_workers or a3c.Args().num_workers
     if num_workers < 1:
         parser.error("--num-workers must be >= 1")
@@ -177,31 +209,40 @@ def main() -> None:
             cpu = next(
                 (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu
             )
-    print(f"machine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}; "
-          f"{num_workers} workers; {opts.seconds:g} s per measurement")  # fmt: skip
+    print(f"machine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}; {num_workers} "
+          f"workers; {opts.seconds:g} s per measurement, {opts.rounds} round(s)")  # fmt: skip
     gflops = matmul_gflops()
-    flops = flops_per_env_step(a3c, a3c.Args().t_max)
-    bound = num_workers * gflops * 1e9 / flops
-    print(f"network: {flops / 1e6:.1f} MFLOP per env step (acting forward + 1/t_max of the "
-          f"rollout's forward and backward)")  # fmt: skip
-    print(f"matmul: {gflops:.1f} GFLOP/s per core (fp32, 1 thread) -> bound "
-          f"{bound:,.0f} steps/s with {num_workers} workers")  # fmt: skip
+    print(f"matmul: {gflops:.1f} GFLOP/s per core (fp32, 1 thread)")
+    bounds = {}
+    for name, module in scripts.items():
+        flops = flops_per_env_step(module, module.Args().t_max)
+        bounds[name] = num_workers * gflops * 1e9 / flops
+        print(f"{name}: {flops / 1e6:.1f} MFLOP per env step (acting forward + 1/t_max of the "
+              f"rollout's forward and backward) -> bound {bounds[name]:,.0f} steps/s")  # fmt: skip
 
-    results = {}
+    baseline = None
     if not opts.no_baseline:
         print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
-        results["baseline"] = run_baseline(a3c, num_workers, opts.seconds, warmup=3.0)
-        sps, per_cpu = results["baseline"]
-        print(f"baseline: {sps:,.0f} steps/s ({per_cpu:,.0f} per {num_workers} CPU-seconds)")
-    print(f"load average {os.getloadavg()[0]:.2f}; a3c_ff ...", flush=True)
-    results["a3c_ff"] = run_a3c_ff(a3c, num_workers, opts.seconds)
-    sps, per_cpu = results["a3c_ff"]
-    line = f"a3c_ff: {sps:,.0f} global env steps/s ({per_cpu:,.0f} per {num_workers} CPU-seconds"
-    line += f", {per_cpu / bound:.0%} of the matmul bound"
-    if "baseline" in results:
-        line += f"; {sps / results['baseline'][0]:.2f}x the baseline"
-        line += f", {per_cpu / results['baseline'][1]:.2f}x per CPU-second"
-    print(line + ")")
+        baseline = run_baseline(a3c, num_workers, opts.seconds, warmup=3.0)
+        print(f"baseline: {baseline[0]:,.0f} steps/s ({baseline[1]:,.0f} per {num_workers} "
+              f"CPU-seconds)")  # fmt: skip
+    measured = {name: [] for name in scripts}
+    for _ in range(opts.rounds):
+        for name, module in scripts.items():
+            print(f"load average {os.getloadavg()[0]:.2f}; {name} ...", flush=True)
+            measured[name].append(run_script(module, num_workers, opts.seconds))
+
+    print(f"\n{'script':<12} {'steps/s':>9} {'per CPU-s':>10} {'of bound':>9} "
+          f"{'time/step vs a3c_ff':>20}")  # fmt: skip
+    ff_sps, ff_per_cpu = np.mean(measured["a3c_ff"], axis=0)
+    for name, runs in measured.items():
+        sps, per_cpu = np.mean(runs, axis=0)
+        line = f"{name:<12} {sps:>9,.0f} {per_cpu:>10,.0f} {per_cpu / bounds[name]:>9.0%}"
+        line += f" {ff_sps / sps:>9.2f}x wall {ff_per_cpu / per_cpu:>5.2f}x CPU"
+        print(line)
+    if baseline is not None:
+        print(f"a3c_ff vs the baseline loop: {ff_sps / baseline[0]:.2f}x steps/s, "
+              f"{ff_per_cpu / baseline[1]:.2f}x per CPU-second")  # fmt: skip
 
 
 if __name__ == "__main__":

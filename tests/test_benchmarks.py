@@ -1,0 +1,50 @@
+"""The benchmark scripts run and report what they promise. Their numbers are not checked here:
+speed is measured by running the scripts themselves, never by timed tests."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def test_env_throughput_reports_every_configuration():
+    result = run("benchmarks/env_throughput.py", "--seconds", "0.05", "--repeats", "1")
+    assert result.returncode == 0, result.stderr
+    assert "gym.make(Catch-v0)" in result.stdout
+    for n in (1, 64, 1024):
+        assert re.search(rf"N={n} grid copy=False +[\d,]+ +[\d,]+", result.stdout)
+
+
+def test_a3c_throughput_compares_a_variant_with_a3c_ff():
+    result = run(
+        "benchmarks/a3c_throughput.py", "agents/a3c_lstm.py", "--seconds", "3", "--no-baseline"
+    )
+    assert result.returncode == 0, result.stderr
+    rows = dict(re.findall(r"^(a3c_\w+) +([\d,]+) +[\d,]+ +\d+% ", result.stdout, re.M))
+    assert set(rows) == {"a3c_ff", "a3c_lstm"}
+    assert all(int(sps.replace(",", "")) > 0 for sps in rows.values())
+    assert re.search(r"a3c_lstm: [\d.]+ MFLOP per env step", result.stdout)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["agents/no_such_script.py"], "no such script"),
+        (["README.md"], "is not an A3C agent script"),
+        (["--seconds", "0"], "--seconds must be > 0"),
+    ],
+)
+def test_a3c_throughput_rejects_bad_input(args, message):
+    result = run("benchmarks/a3c_throughput.py", *args)
+    assert result.returncode != 0
+    assert message in result.stderr
