@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="one label per table (default: each table's folder name)",
     )
-    parser.add_argument("--out", default="sweep.png", help="the PNG to write")
+    parser.add_argument("-o", "--out", default="sweep.png", help="the PNG to write")
     parser.add_argument("--x", default="learning-rate", help="the swept column (x axis)")
     parser.add_argument("--linear-x", action="store_true", help="plot x itself, not log10(x)")
     parser.add_argument(

@@ -540,7 +540,8 @@ def test_plot_writes_a_png_and_the_table(fake_agent, tmp_path):
         tables.append(str(out / "results.csv"))
     png = tmp_path / "sweep.png"
     result = subprocess.run(
-        [sys.executable, str(PLOT), *tables, "--labels", "FF", "GLPQ", "--out", str(png)],
+        # -o, as the README writes it
+        [sys.executable, str(PLOT), *tables, "--labels", "FF", "GLPQ", "-o", str(png)],
         capture_output=True,
         text=True,
         cwd=ROOT,
