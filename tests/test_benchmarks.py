@@ -48,3 +48,11 @@ def test_a3c_throughput_rejects_bad_input(args, message):
     result = run("benchmarks/a3c_throughput.py", *args)
     assert result.returncode != 0
     assert message in result.stderr
+
+
+def test_a3c_step_profile_reports_every_phase():
+    result = run("benchmarks/a3c_step_profile.py", "--seconds", "1")
+    assert result.returncode == 0, result.stderr
+    shares = re.findall(r"^[a-z ]+ +[\d.]+ us/step +([\d.]+)%$", result.stdout, re.M)
+    assert len(shares) == 7
+    assert abs(sum(map(float, shares)) - 100) < 0.5
