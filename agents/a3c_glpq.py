@@ -212,6 +212,7 @@ NETWORK_ARGS = ("env", "activation", "scale_obs", "prototypes_per_action", "dist
 NORM_EPS = 1e-8  # below this norm a vector counts as zero (cosine and Pearson distances)
 SQRT_EPS = 1e-12  # the Euclidean distance is sqrt(max(squared, SQRT_EPS)): no infinite gradient
 MU_EPS = 1e-12  # in mu's denominator: finite where d_- = d = 0
+EXP_SAFE_TAU = 40.0  # exp(-2 tau) is a normal float32 up to tau = 43
 # p of the temperature schedules, from step 0 to T_max (thesis 7.2.4)
 P_RANGES = {"cold": (0.9, 0.99), "hot": (0.9, 0.99), "searing": (0.95, 0.999)}
 
@@ -267,7 +268,13 @@ def glpq_log_policy(distances: torch.Tensor, tau: torch.Tensor | float, k: int) 
     if k < distances.shape[-1]:
         nearest = distances.topk(k, dim=-1, largest=False, sorted=False).indices
         mu = mu.gather(-1, nearest)
-    per_action = torch.logsumexp(tau * mu, dim=-1)  # (B, A)
+    if (tau.detach() if torch.is_tensor(tau) else tau) <= EXP_SAFE_TAU:
+        # mu <= 1, so exp(tau (mu - 1)) lies in [exp(-2 tau), 1]: no overflow, no underflow to 0.
+        # It shifts every action's sum by the same exp(-tau), which log_softmax cancels, and costs
+        # a fraction of logsumexp's generic CPU kernel (the head's largest cost when acting).
+        per_action = torch.exp(tau * (mu - 1.0)).sum(-1).log()  # (B, A)
+    else:
+        per_action = torch.logsumexp(tau * mu, dim=-1)
     return F.log_softmax(per_action, dim=-1)
 
 

@@ -242,8 +242,13 @@ def nearest_prototypes(distances: torch.Tensor, k: int) -> torch.Tensor:
 
 def lpq_log_policy(distances: torch.Tensor, k: int) -> torch.Tensor:
     """log pi(a) of eq. 7.9 from the distances (B, A, P): log sum over a's competing prototypes
-    of exp(-d) minus log sum over all competing prototypes, stable through logsumexp."""
-    per_action = torch.logsumexp(-nearest_prototypes(distances, k), dim=-1)  # (B, A)
+    of exp(-d) minus log sum over all competing prototypes."""
+    distances = nearest_prototypes(distances, k)
+    # log sum_p exp(-d_p) = log sum_p exp(m - d_p) - m with m = min_p d_p: the terms lie in
+    # (0, 1] and one is 1, so nothing overflows or sums to 0. The same as logsumexp (m is a
+    # constant to the gradient), at a fraction of its generic CPU kernel's cost.
+    nearest = distances.detach().amin(dim=-1, keepdim=True)  # (B, A, 1)
+    per_action = torch.exp(nearest - distances).sum(-1).log() - nearest.squeeze(-1)  # (B, A)
     return F.log_softmax(per_action, dim=-1)
 
 

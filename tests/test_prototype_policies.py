@@ -189,9 +189,11 @@ def test_glpq_by_hand(glpq):
     np.testing.assert_allclose(glpq.relative_distances(distances).numpy().ravel(), mu, rtol=1e-6)
     e = np.exp(2.0 * mu)  # eq. 7.10 with tau = 2
     expected = np.array([e[0] + e[1], e[2] + e[3]]) / e.sum()
-    np.testing.assert_allclose(glpq.glpq_log_policy(distances, 2.0, 2).exp().numpy(), [expected])
+    policy = glpq.glpq_log_policy(distances, 2.0, 2).exp().numpy()  # float32: rtol 1e-6
+    np.testing.assert_allclose(policy, [expected], rtol=1e-6)
     near = np.array([e[0], e[3]]) / (e[0] + e[3])  # k = 1
-    np.testing.assert_allclose(glpq.glpq_log_policy(distances, 2.0, 1).exp().numpy(), [near])
+    policy = glpq.glpq_log_policy(distances, 2.0, 1).exp().numpy()
+    np.testing.assert_allclose(policy, [near], rtol=1e-6)
 
 
 def theorem_1_bound(tau: float, num_actions: int) -> float:
@@ -413,3 +415,34 @@ def test_glpq_rejects_the_negative_distance(glpq, capsys):
         tyro.cli(glpq.Args, args=["--distance", "inverse-squared-euclidean"])
     assert exit_info.value.code == 2
     tyro.cli(glpq.Args, args=["--distance", "manhattan"])  # while the others parse
+
+
+@pytest.mark.parametrize("tau", [0.5, 4.22, 39.0, 41.0, 200.0])
+def test_glpq_policy_and_gradients_equal_the_logsumexp_form(glpq, tau):
+    # below EXP_SAFE_TAU the head sums exp(tau (mu - 1)) instead of calling logsumexp(tau mu)
+    generator = torch.Generator().manual_seed(0)
+    distances = torch.rand(4, 3, 5, generator=generator, dtype=torch.float64) * 10
+    distances.requires_grad_()
+    log_pi = glpq.glpq_log_policy(distances, tau, 5)
+    mu = glpq.relative_distances(distances)
+    reference = F.log_softmax(torch.logsumexp(tau * mu, dim=-1), dim=-1)
+    torch.testing.assert_close(log_pi, reference)
+    weights = torch.rand(4, 3, generator=generator, dtype=torch.float64)
+    (grad,) = torch.autograd.grad((log_pi * weights).sum(), distances)
+    (reference_grad,) = torch.autograd.grad((reference * weights).sum(), distances)
+    torch.testing.assert_close(grad, reference_grad)
+    assert torch.isfinite(log_pi).all()
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e3])
+def test_lpq_policy_and_gradients_equal_the_logsumexp_form(lpq, scale):
+    generator = torch.Generator().manual_seed(1)
+    distances = torch.rand(4, 3, 5, generator=generator, dtype=torch.float64) * scale
+    distances.requires_grad_()
+    log_pi = lpq.lpq_log_policy(distances, 5)
+    reference = F.log_softmax(torch.logsumexp(-distances, dim=-1), dim=-1)
+    torch.testing.assert_close(log_pi, reference)
+    weights = torch.rand(4, 3, generator=generator, dtype=torch.float64)
+    (grad,) = torch.autograd.grad((log_pi * weights).sum(), distances)
+    (reference_grad,) = torch.autograd.grad((reference * weights).sum(), distances)
+    torch.testing.assert_close(grad, reference_grad)
