@@ -56,3 +56,10 @@ def test_a3c_step_profile_reports_every_phase():
     shares = re.findall(r"^[a-z ]+ +[\d.]+ us/step +([\d.]+)%$", result.stdout, re.M)
     assert len(shares) == 7
     assert abs(sum(map(float, shares)) - 100) < 0.5
+
+    def number(pattern: str) -> float:
+        return float(re.search(pattern, result.stdout)[1].replace(",", ""))
+
+    measured = number(r"([\d,]+) steps/s in one process")
+    # the network's phases are only part of a step: the ceiling lies above the measured speed
+    assert number(r"at most ([\d,]+) steps/s") > measured
