@@ -70,9 +70,11 @@ class Args:
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
     """the shared optimizer; its statistics live in shared memory and are updated without locks"""
     rms_decay: float = 0.99
-    """RMSprop decay rho of the mean square (also Adam's beta2)"""
+    """RMSprop decay rho of the mean square"""
     adam_beta1: float = 0.9
     """Adam's first-moment decay beta1"""
+    adam_beta2: float = 0.99
+    """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
@@ -107,18 +109,28 @@ class Args:
     (our reading of the thesis's unexplained 'zero clipping', figure C.1)"""
     prototype_init_bound: float = 1 / 16
     """the bound b of the prototype initialisation"""
+    mu_form: Literal["text", "code"] = "text"
+    """text: each prototype's logit is tau * mu_i, mu_i = (d_- - d_i) / (d_- + d_i) (eq. 7.7 as
+    written, bounded by Theorem 1); code: tau * (d_- / (d_i + d_-) - d_i), what the thesis's runs
+    computed (an operator-precedence slip in its code; thesis-notes.md, "As run")"""
     temperature: Literal["fixed", "cold", "hot", "searing", "trainable"] = "hot"
     """tau: fixed at --tau (1 is vanilla GLPQ); tau = 0.5 ln(p (n - 1) / (1 - p)) with p linear
     in the global step and n = |A| (cold, eq. 7.17) or n = k |A| (hot, eq. 7.18); searing is hot
     with p from 0.95 to 0.999; trainable starts at --tau"""
-    tau: float = 1.0
-    """the fixed tau, or the initial trainable tau"""
+    tau: float | None = None
+    """the fixed tau (default 1), or the initial trainable tau (default: the cold tau at
+    --p-start, 0.5 ln(0.9 (|A| - 1) / 0.1) = 1.445 on Catch, as the thesis's runs started it)"""
+    tau_parametrization: Literal["log", "plain"] = "log"
+    """a trainable tau as a parameter log tau (tau stays positive) or tau itself (as run)"""
     p_start: float | None = None
     """p at step 0 of the cold/hot/searing schedule (default 0.9; searing 0.95)"""
     p_end: float | None = None
     """p at T_max of the schedule (default 0.99; searing 0.999)"""
     tau_loss_correction: bool = True
     """multiply the policy loss by 1/tau, without a gradient through tau (thesis 7.2.4)"""
+    tau_loss_scope: Literal["policy", "policy-and-entropy"] = "policy"
+    """what the 1/tau correction divides: the policy-gradient term alone, or that term and the
+    entropy bonus (as run: the thesis's code divided its whole policy loss, entropy included)"""
 
     # Evaluation, logging, checkpoints
     eval_interval: int | None = None
@@ -176,6 +188,7 @@ def resolve_defaults(args: Args) -> Args:
         "--vf-coef": (args.vf_coef, args.vf_coef >= 0, ">= 0"),
         "--rms-decay": (args.rms_decay, 0 <= args.rms_decay < 1, "in [0, 1)"),
         "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
+        "--adam-beta2": (args.adam_beta2, 0 <= args.adam_beta2 < 1, "in [0, 1)"),
         "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
         "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
         "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
@@ -208,7 +221,7 @@ def make_env(env_id: str, *, render_mode: str | None = None, video_dir: str | No
 # ----------------------------------------------------------------------------------------------
 # args a checkpoint's network depends on
 NETWORK_ARGS = ("env", "activation", "scale_obs", "prototypes_per_action", "distance",
-                "competition_size", "temperature")  # fmt: skip
+                "competition_size", "mu_form", "temperature", "tau_parametrization")  # fmt: skip
 NORM_EPS = 1e-8  # below this norm a vector counts as zero (cosine and Pearson distances)
 SQRT_EPS = 1e-12  # the Euclidean distance is sqrt(max(squared, SQRT_EPS)): no infinite gradient
 MU_EPS = 1e-12  # in mu's denominator: finite where d_- = d = 0
@@ -253,29 +266,61 @@ def relative_distances(distances: torch.Tensor) -> torch.Tensor:
     """mu_i = (d_- - d_i) / (d_- + d_i) of eq. 7.7, implemented as written (the thesis code had
     an operator-precedence slip here), for distances (B, A, P) -> (B, A, P) in [-1, 1]; d_- is
     the distance to the nearest prototype of another action than i's."""
-    nearest = distances.amin(dim=-1)  # (B, A)
-    own = torch.eye(distances.shape[1], dtype=torch.bool, device=distances.device)
-    d_minus = nearest[:, None, :].masked_fill(own, math.inf).amin(dim=-1)  # (B, A)
-    d_minus = d_minus[..., None]
+    d_minus = nearest_other_action(distances)
     return (d_minus - distances) / (d_minus + distances + MU_EPS)
 
 
-def glpq_log_policy(distances: torch.Tensor, tau: torch.Tensor | float, k: int) -> torch.Tensor:
+def as_run_scores(distances: torch.Tensor) -> torch.Tensor:
+    """d_- / (d_i + d_-) - d_i for distances (B, A, P) -> (B, A, P): what the thesis's code
+    computed in place of mu_i (`d_i - d_- / (d_i + d_-)`, an operator-precedence slip, negated).
+    It equals mu_i / 2 - d_i + 1/2: LPQ's -d_i plus half of GLPQ's term, unbounded below."""
+    d_minus = nearest_other_action(distances)
+    return d_minus / (distances + d_minus + MU_EPS) - distances
+
+
+def nearest_other_action(distances: torch.Tensor) -> torch.Tensor:
+    """d_-: for each prototype of distances (B, A, P), the distance to the nearest prototype of
+    another action -> (B, A, 1)."""
+    nearest = distances.amin(dim=-1)  # (B, A)
+    own = torch.eye(distances.shape[1], dtype=torch.bool, device=distances.device)
+    return nearest[:, None, :].masked_fill(own, math.inf).amin(dim=-1)[..., None]
+
+
+def glpq_log_policy(
+    distances: torch.Tensor, tau: torch.Tensor | float, k: int, mu_form: str = "text"
+) -> torch.Tensor:
     """log pi(a) of eq. 7.10 from the distances (B, A, P): log sum over a's competing prototypes
     of exp(tau mu) minus log sum over all competing prototypes, stable through logsumexp; the
-    competition (eq. 7.11) is each action's k nearest prototypes."""
-    mu = relative_distances(distances)
+    competition (eq. 7.11) is each action's k nearest prototypes. mu_form "code" puts the
+    thesis's as-run scores (as_run_scores) in place of mu."""
+    scores = relative_distances(distances) if mu_form == "text" else as_run_scores(distances)
     if k < distances.shape[-1]:
         nearest = distances.topk(k, dim=-1, largest=False, sorted=False).indices
-        mu = mu.gather(-1, nearest)
-    if (tau.detach() if torch.is_tensor(tau) else tau) <= EXP_SAFE_TAU:
+        scores = scores.gather(-1, nearest)
+    if mu_form == "text" and (tau.detach() if torch.is_tensor(tau) else tau) <= EXP_SAFE_TAU:
         # mu <= 1, so exp(tau (mu - 1)) lies in [exp(-2 tau), 1]: no overflow, no underflow to 0.
         # It shifts every action's sum by the same exp(-tau), which log_softmax cancels, and costs
         # a fraction of logsumexp's generic CPU kernel (the head's largest cost when acting).
-        per_action = torch.exp(tau * (mu - 1.0)).sum(-1).log()  # (B, A)
+        per_action = torch.exp(tau * (scores - 1.0)).sum(-1).log()  # (B, A)
     else:
-        per_action = torch.logsumexp(tau * mu, dim=-1)
+        # logsumexp per action, shifted by the detached largest logit of each action: every sum
+        # holds a term exp(0) = 1, so none is 0 even where the logits are -1e4 (the as-run scores
+        # near d = 625 on Catch's unscaled frames); the same value and gradient as logsumexp
+        logits = tau * scores
+        largest = logits.detach().amax(dim=-1, keepdim=True)  # (B, A, 1)
+        per_action = torch.exp(logits - largest).sum(-1).log() + largest.squeeze(-1)
     return F.log_softmax(per_action, dim=-1)
+
+
+def tau_corrected_loss(
+    loss: torch.Tensor, policy_loss: torch.Tensor, entropy: torch.Tensor, scale: float, args: Args
+) -> torch.Tensor:
+    """The A3C loss with its policy part times scale = 1/tau (thesis 7.2.4): the policy-gradient
+    term alone (--tau-loss-scope policy), or that term and the entropy bonus (as run)."""
+    corrected = (
+        policy_loss if args.tau_loss_scope == "policy" else (policy_loss - args.ent_coef * entropy)
+    )
+    return loss + (scale - 1.0) * corrected
 
 
 def scheduled_tau(p: float, n: int) -> float:
@@ -325,12 +370,21 @@ class ActorCritic(nn.Module):
             self.prototypes.uniform_(-bound, bound)
             if args.prototype_init == "uniform-clipped":
                 self.prototypes.clamp_(min=0.0)
-        self.temperature_mode, self.fixed_tau = args.temperature, args.tau
+        self.mu_form, self.temperature_mode = args.mu_form, args.temperature
         self.loss_correction, self.progress = args.tau_loss_correction, 0.0
-        if args.temperature in ("fixed", "trainable") and not args.tau > 0:
-            raise UsageError(f"--tau must be > 0 (got {args.tau})")
-        if args.temperature == "trainable":  # as log tau, so that tau stays positive
-            self.log_tau = nn.Parameter(torch.tensor(math.log(args.tau)))
+        tau = args.tau
+        if tau is None:  # fixed: vanilla GLPQ; trainable: the cold tau at p0, as the runs did
+            p_start = P_RANGES["cold"][0] if args.p_start is None else args.p_start
+            if args.temperature == "trainable" and not 1 / num_actions < p_start < 1:
+                raise UsageError(f"--p-start must be in (1/|A|, 1) (got {p_start})")
+            tau = 1.0 if args.temperature != "trainable" else scheduled_tau(p_start, num_actions)
+        if args.temperature in ("fixed", "trainable") and not (tau > 0 and math.isfinite(tau)):
+            raise UsageError(f"--tau must be > 0 (got {tau})")
+        self.fixed_tau = tau
+        if args.temperature == "trainable" and args.tau_parametrization == "log":
+            self.log_tau = nn.Parameter(torch.tensor(math.log(tau)))  # tau stays positive
+        elif args.temperature == "trainable":  # as run: tau itself, free to cross 0
+            self.plain_tau = nn.Parameter(torch.tensor(tau))
         if args.temperature in P_RANGES:
             p_start, p_end = P_RANGES[args.temperature]
             self.p_start = p_start if args.p_start is None else args.p_start
@@ -358,7 +412,7 @@ class ActorCritic(nn.Module):
         """log pi (B, A) from the features h (B, 256)."""
         distances = prototype_distances(hidden, self.prototypes, self.distance)
         distances = distances.view(len(hidden), self.num_actions, -1)  # (B, A, P)
-        return glpq_log_policy(distances, self.tau(), self.competition_size)
+        return glpq_log_policy(distances, self.tau(), self.competition_size, self.mu_form)
 
     def set_progress(self, progress: float) -> None:
         """The fraction T / T_max of training done, which the p schedule follows."""
@@ -369,7 +423,7 @@ class ActorCritic(nn.Module):
         if self.temperature_mode == "fixed":
             return self.fixed_tau
         if self.temperature_mode == "trainable":
-            return self.log_tau.exp()
+            return self.log_tau.exp() if hasattr(self, "log_tau") else self.plain_tau
         p = self.p_start + (self.p_end - self.p_start) * self.progress
         return scheduled_tau(p, self.competitors)
 
@@ -528,7 +582,7 @@ class SharedAdam:
 
 def make_optimizer(params: list[torch.Tensor], args: Args) -> SharedRMSprop | SharedAdam:
     if args.optimizer == "adam":
-        return SharedAdam(params, args.adam_beta1, args.rms_decay, args.optim_eps)
+        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
     return SharedRMSprop(params, args.rms_decay, args.optim_eps)
 
 
@@ -649,7 +703,7 @@ def worker(worker_id: int, shared: Shared, args: Args, parent_pid: int) -> None:
             args.vf_coef,
         )
         # GLPQ: the policy loss times 1/tau (thesis 7.2.4), or 1 without --tau-loss-correction
-        loss = loss + (model.policy_loss_scale() - 1.0) * policy_loss
+        loss = tau_corrected_loss(loss, policy_loss, entropy, model.policy_loss_scale(), args)
         grads = torch.autograd.grad(loss, params)
         grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
         shared.optimizer.step(grads, annealed_lr(args, global_step))
@@ -774,10 +828,13 @@ def load_checkpoint(path: str) -> dict:
 
 def restore(shared: Shared, checkpoint: dict, args: Args, path: str) -> None:
     for key in NETWORK_ARGS:
-        if checkpoint["args"][key] != getattr(args, key):
+        # a flag newer than the checkpoint counts as its default (a network that differs all the
+        # same fails to load below, with a one-line message)
+        trained = checkpoint["args"].get(key, Args.__dataclass_fields__[key].default)
+        if trained != getattr(args, key):
             raise UsageError(
                 f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
-                f"{checkpoint['args'][key]}, not {getattr(args, key)}"
+                f"{trained}, not {getattr(args, key)}"
             )
     if checkpoint["optimizer_name"] != args.optimizer:
         raise UsageError(

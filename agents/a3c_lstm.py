@@ -70,9 +70,11 @@ class Args:
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
     """the shared optimizer; its statistics live in shared memory and are updated without locks"""
     rms_decay: float = 0.99
-    """RMSprop decay rho of the mean square (also Adam's beta2)"""
+    """RMSprop decay rho of the mean square"""
     adam_beta1: float = 0.9
     """Adam's first-moment decay beta1"""
+    adam_beta2: float = 0.99
+    """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
@@ -152,6 +154,7 @@ def resolve_defaults(args: Args) -> Args:
         "--vf-coef": (args.vf_coef, args.vf_coef >= 0, ">= 0"),
         "--rms-decay": (args.rms_decay, 0 <= args.rms_decay < 1, "in [0, 1)"),
         "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
+        "--adam-beta2": (args.adam_beta2, 0 <= args.adam_beta2 < 1, "in [0, 1)"),
         "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
         "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
         "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
@@ -383,7 +386,7 @@ class SharedAdam:
 
 def make_optimizer(params: list[torch.Tensor], args: Args) -> SharedRMSprop | SharedAdam:
     if args.optimizer == "adam":
-        return SharedAdam(params, args.adam_beta1, args.rms_decay, args.optim_eps)
+        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
     return SharedRMSprop(params, args.rms_decay, args.optim_eps)
 
 
@@ -637,10 +640,13 @@ def load_checkpoint(path: str) -> dict:
 
 def restore(shared: Shared, checkpoint: dict, args: Args, path: str) -> None:
     for key in NETWORK_ARGS:
-        if checkpoint["args"][key] != getattr(args, key):
+        # a flag newer than the checkpoint counts as its default (a network that differs all the
+        # same fails to load below, with a one-line message)
+        trained = checkpoint["args"].get(key, Args.__dataclass_fields__[key].default)
+        if trained != getattr(args, key):
             raise UsageError(
                 f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
-                f"{checkpoint['args'][key]}, not {getattr(args, key)}"
+                f"{trained}, not {getattr(args, key)}"
             )
     if checkpoint["optimizer_name"] != args.optimizer:
         raise UsageError(

@@ -446,3 +446,131 @@ def test_lpq_policy_and_gradients_equal_the_logsumexp_form(lpq, scale):
     (grad,) = torch.autograd.grad((log_pi * weights).sum(), distances)
     (reference_grad,) = torch.autograd.grad((reference * weights).sum(), distances)
     torch.testing.assert_close(grad, reference_grad)
+
+
+# ---------------------------------------------------------------------------------------------
+# GLPQ as run (--mu-form code): the thesis's code computed tau * (d_- / (d_i + d_-) - d_i)
+# ---------------------------------------------------------------------------------------------
+def as_run_policy_by_hand(d: np.ndarray, tau: float, k: int) -> np.ndarray:
+    """A direct NumPy computation for distances d (A, P): each prototype's logit is
+    tau * (d_- / (d_i + d_-) - d_i), d_- the nearest prototype of another action; the k nearest
+    prototypes of each action compete; softmax over them all, summed per action."""
+    num_actions = d.shape[0]
+    logits, owners = [], []
+    for a in range(num_actions):
+        d_minus = min(d[b].min() for b in range(num_actions) if b != a)
+        for i in np.argsort(d[a])[:k]:
+            logits.append(tau * (d_minus / (d[a, i] + d_minus) - d[a, i]))
+            owners.append(a)
+    logits = np.array(logits, dtype=np.float64)
+    e = np.exp(logits - logits.max())
+    return np.array([e[np.array(owners) == a].sum() for a in range(num_actions)]) / e.sum()
+
+
+@pytest.mark.parametrize(("tau", "k"), [(2.0, 2), (2.0, 1), (0.7, 2)])
+def test_glpq_as_run_form_by_hand(glpq, tau, k):
+    d = np.array([[1.0, 2.0], [3.0, 0.5]])
+    # by hand for action 0's first prototype: d_- = 0.5, logit tau * (0.5 / 1.5 - 1)
+    scores = glpq.as_run_scores(torch.tensor(d)[None]).numpy().ravel()
+    np.testing.assert_allclose(scores, [0.5 / 1.5 - 1, 0.5 / 2.5 - 2, 1 / 4 - 3, 1 / 1.5 - 0.5])
+    policy = glpq.glpq_log_policy(torch.tensor(d)[None], tau, k, "code").exp().numpy()
+    np.testing.assert_allclose(policy, [as_run_policy_by_hand(d, tau, k)], rtol=1e-12)
+
+
+def test_glpq_as_run_form_is_half_mu_minus_d(glpq):
+    # thesis-notes: tau * (mu_i / 2 - d_i) up to a constant, so the same policy
+    generator = torch.Generator().manual_seed(2)
+    d = torch.rand(5, 3, 4, generator=generator, dtype=torch.float64) * 50
+    mu = glpq.relative_distances(d)
+    reference = F.log_softmax(torch.logsumexp(1.3 * (mu / 2 - d), dim=-1), dim=-1)
+    torch.testing.assert_close(glpq.glpq_log_policy(d, 1.3, 4, "code"), reference)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    d=st.lists(st.floats(0.0, 1e4), min_size=12, max_size=12),
+    k=st.integers(1, 4),
+    tau=st.floats(0.01, 5.0),
+    dtype=st.sampled_from([torch.float32, torch.float64]),
+)
+def test_glpq_as_run_form_is_finite_far_from_the_prototypes(glpq, d, k, tau, dtype):
+    # the old exp(tau (mu - 1)) shortcut underflows here: logits reach -5e4
+    distances = torch.tensor(d, dtype=dtype).view(1, 3, 4).requires_grad_()
+    tau_tensor = torch.tensor(tau, dtype=dtype, requires_grad=True)
+    log_pi = glpq.glpq_log_policy(distances, tau_tensor, k, "code")
+    assert torch.isfinite(log_pi).all()
+    assert log_pi.exp().sum().item() == pytest.approx(1.0, abs=1e-5)
+    grads = torch.autograd.grad(log_pi[0, 0] - log_pi[0, 2], [distances, tau_tensor])
+    assert all(torch.isfinite(g).all() for g in grads)
+
+
+@pytest.mark.parametrize("tau", [1.0, 1.445, 3.02, 5.0])
+def test_theorem_1_holds_for_the_text_and_not_for_the_as_run_form(glpq, tau):
+    # h on a prototype of action 1, every other prototype at Catch's initial distance (~625):
+    # Theorem 1 caps eq. 7.7's pi at e^2tau / (e^2tau + |A| - 1); the as-run logits, unbounded,
+    # put nearly all mass on action 1
+    distances = torch.full((1, 4, 3), 625.0, dtype=torch.float64)
+    distances[0, 1, 0] = 0.0
+    bound = theorem_1_bound(tau, 4)
+    assert glpq.glpq_log_policy(distances, tau, 3, "text").exp()[0, 1].item() <= bound
+    assert glpq.glpq_log_policy(distances, tau, 3, "code").exp()[0, 1].item() > bound
+    assert glpq.glpq_log_policy(distances, tau, 3, "code").exp()[0, 1].item() > 1 - 1e-9
+
+
+def test_as_run_form_gives_far_larger_gradients_at_catch_scale(glpq):
+    # thesis-notes: at d ~ 625 eq. 7.7 is nearly flat; the as-run gradient is ~1000x larger
+    generator = torch.Generator().manual_seed(3)
+    distances = 600 + 50 * torch.rand(1, 3, 16, generator=generator, dtype=torch.float64)
+    sizes = {}
+    for form in ("text", "code"):
+        d = distances.clone().requires_grad_()
+        log_pi = glpq.glpq_log_policy(d, 1.445, 16, form)
+        (grad,) = torch.autograd.grad(log_pi[0, 0], d)
+        sizes[form] = grad.abs().sum().item()
+        if form == "text":
+            assert (log_pi.exp() - 1 / 3).abs().max() < 0.005  # pi within 0.005 of uniform
+    assert sizes["code"] > 100 * sizes["text"]
+
+
+def test_trainable_tau_as_run_and_the_loss_scope_flags(glpq):
+    # by default a trainable tau starts at the cold tau for p0 = 0.9: 0.5 ln(0.9 * 2 / 0.1)
+    as_run = glpq.Args(temperature="trainable", tau_parametrization="plain", mu_form="code")
+    model = glpq.ActorCritic(3, as_run)
+    assert isinstance(model.plain_tau, torch.nn.Parameter) and "log_tau" not in dict(
+        model.named_parameters()
+    )
+    assert model.tau().item() == pytest.approx(0.5 * math.log(18), rel=1e-6)  # 1.445
+    log_probs, _ = model(torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8))
+    (grad,) = torch.autograd.grad(log_probs[:, 0].sum(), [model.plain_tau])
+    assert torch.isfinite(grad) and grad.item() != 0.0
+    log_form = glpq.ActorCritic(3, glpq.Args(temperature="trainable"))
+    assert log_form.log_tau.exp().item() == pytest.approx(0.5 * math.log(18), rel=1e-6)
+    assert glpq.ActorCritic(3, glpq.Args(temperature="fixed")).tau() == 1.0
+    for flags in ({"temperature": "trainable", "p_start": 0.2}, {"tau": -1.0}):
+        with pytest.raises(glpq.UsageError):
+            glpq.ActorCritic(3, glpq.Args(**{"temperature": "fixed", **flags}))
+
+
+@pytest.mark.parametrize("scope", ["policy", "policy-and-entropy"])
+def test_glpq_as_run_end_to_end(tmp_path, scope):
+    as_run = ["--mu-form", "code", "--tau-loss-scope", scope, "--temperature", "trainable",
+              "--tau-parametrization", "plain"]  # fmt: skip
+    budget = ["--total-timesteps", "1500", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
+    result = run("a3c_glpq", *TINY, *budget, *as_run)
+    assert result.returncode == 0, result.stderr
+    assert evaluation_steps(tmp_path)[-1] >= 1500
+    # the form is part of the network: the text form cannot resume it
+    result = run("a3c_glpq", "--resume", str(tmp_path / "checkpoint.pt"), *as_run[2:])
+    assert result.returncode == 2 and "--mu-form code" in result.stderr
+
+
+def test_tau_loss_scope(glpq):
+    # loss = L_pi - beta H + lambda_V L_V with L_pi = 2, H = 3, beta = 0.01, L_V term 0.5
+    policy_loss, entropy = torch.tensor(2.0), torch.tensor(3.0)
+    loss = policy_loss - 0.01 * entropy + 0.5
+    scale = 1 / 4.0  # tau = 4
+    text = glpq.tau_corrected_loss(loss, policy_loss, entropy, scale, glpq.Args(ent_coef=0.01))
+    assert text.item() == pytest.approx(2.0 / 4 - 0.03 + 0.5)
+    as_run = glpq.Args(ent_coef=0.01, tau_loss_scope="policy-and-entropy")
+    whole = glpq.tau_corrected_loss(loss, policy_loss, entropy, scale, as_run)
+    assert whole.item() == pytest.approx((2.0 - 0.03) / 4 + 0.5)
