@@ -69,9 +69,11 @@ class Args:
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
     """the shared optimizer; its statistics live in shared memory and are updated without locks"""
     rms_decay: float = 0.99
-    """RMSprop decay rho of the mean square (also Adam's beta2)"""
+    """RMSprop decay rho of the mean square"""
     adam_beta1: float = 0.9
     """Adam's first-moment decay beta1"""
+    adam_beta2: float = 0.99
+    """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
@@ -97,7 +99,24 @@ class Args:
     lws_centroids: Literal["feature", "group"] = "feature"
     """feature-wise: a centroid per pair and output map; group-wise: one per pair (kernel group)"""
     lws_trainable: bool = True
-    """train the centroids and Sigma by gradient descent; else they stay at their initial values"""
+    """train the centroids and Sigma (or A_s) by gradient descent; else they stay at their
+    initial values"""
+    lws_similarity: Literal["sigma", "matrix"] = "sigma"
+    """sigma: S_s = exp(-(x - mu_s)^T Sigma (x - mu_s)), one 2x2 Sigma per layer (eq. 6.2);
+    matrix (as run): S_s = exp(-||A_s (x - mu_s)||^2), a 2x2 A_s per centroid; both start at
+    the identity"""
+    lws_padding: Literal["valid", "same"] = "valid"
+    """valid: grids 84 -> 20 -> 9 (the thesis's parameter count, 6.1.2); same (as run):
+    TensorFlow's, 84 -> 21 -> 11"""
+    lws_second_layer_maps: int = 64
+    """the second LWS layer's output maps (thesis 6.1.2: 64; the Figure 6.3 LWS runs used 32)"""
+    lws_kernel_init: Literal["default", "uniform-sqrt3"] = "default"
+    """the LWS kernels' init: default = --weight-init and --bias-init, like the other layers;
+    uniform-sqrt3 (as run) = U(+-sqrt(3 / fan_in)) with zero biases, other layers unchanged"""
+    lws_centroid_init: Literal["uniform", "grid"] = "uniform"
+    """uniform: U[0, 1]^2 (thesis 6.1.2); grid: an n x n grid, n = sqrt(S), at k / (n + 1) on
+    each axis (1/3 and 2/3 for S = 4), as the thesis code placed them for "LWS S" (Figure 6.3:
+    --lws-kcps 4 --lws-centroids group --no-lws-trainable)"""
 
     # Evaluation, logging, checkpoints
     eval_interval: int | None = None
@@ -155,6 +174,7 @@ def resolve_defaults(args: Args) -> Args:
         "--vf-coef": (args.vf_coef, args.vf_coef >= 0, ">= 0"),
         "--rms-decay": (args.rms_decay, 0 <= args.rms_decay < 1, "in [0, 1)"),
         "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
+        "--adam-beta2": (args.adam_beta2, 0 <= args.adam_beta2 < 1, "in [0, 1)"),
         "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
         "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
         "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
@@ -187,6 +207,7 @@ def make_env(env_id: str, *, render_mode: str | None = None, video_dir: str | No
 # ----------------------------------------------------------------------------------------------
 # args a checkpoint's network depends on; seed too, since fixed centroids are drawn from it
 NETWORK_ARGS = ("env", "activation", "scale_obs", "lws_kcps", "lws_centroids", "lws_trainable",
+                "lws_similarity", "lws_padding", "lws_second_layer_maps", "lws_centroid_init",
                 "seed")  # fmt: skip
 
 
@@ -194,10 +215,13 @@ class LWSConv2d(nn.Module):
     """Local weight sharing layer (thesis 6.1.1, eqs. 6.1 and 6.2), before its activation:
     Y = sum_s (W_s * X + b_s) * S_s / sum_s' S_s', with the similarity of output cell x = (i, j)
     (row, column; the output grid spans [0, 1] on both axes) to centroid mu_s
-    S_s = exp(-(x - mu_s)^T Sigma (x - mu_s)). Feature-wise: a centroid per pair and output map;
-    group-wise: one per pair (its kernel group). Centroids start U[0, 1], Sigma (one 2x2 matrix
-    per layer) the identity; fixed ones are buffers drawn from `generator`, so that every
-    process, seeded alike, builds the same."""
+    S_s = exp(-(x - mu_s)^T Sigma (x - mu_s)) with one 2x2 Sigma per layer (eq. 6.2), or, as run
+    (--lws-similarity matrix), S_s = exp(-||A_s (x - mu_s)||^2) with a 2x2 A_s per centroid.
+    Feature-wise: a centroid per pair and output map; group-wise: one per pair (its kernel
+    group). Centroids start U[0, 1] or on a grid, Sigma and A_s at the identity; fixed ones are
+    buffers made with `generator`, so that every process, seeded alike, builds the same.
+    Padding valid, or TensorFlow's same: ceil(in / stride) outputs, the odd padding pixel at the
+    bottom and right."""
 
     def __init__(self, in_channels: int, out_channels: int, kernel_size: int, stride: int,
                  input_size: int, args: Args, generator: torch.Generator):  # fmt: skip
@@ -205,31 +229,52 @@ class LWSConv2d(nn.Module):
         self.kcps, self.out_channels = args.lws_kcps, out_channels
         # the S kernels as one convolution with S times the output maps: one pass, not S
         self.conv = nn.Conv2d(in_channels, self.kcps * out_channels, kernel_size, stride)
-        size = (input_size - kernel_size) // stride + 1
+        self.padding: tuple[int, int, int, int] | None = None
+        if args.lws_padding == "same":
+            self.size = -(-input_size // stride)
+            total = max((self.size - 1) * stride + kernel_size - input_size, 0)
+            # F.pad (left, right, top, bottom): Conv2d's own padding is symmetric, TF's is not
+            self.padding = (total // 2, total - total // 2) * 2
+        else:
+            self.size = (input_size - kernel_size) // stride + 1
         # the output grid's row (i) and column (j) coordinates
-        self.register_buffer("axis", torch.linspace(0.0, 1.0, size), persistent=False)
+        self.register_buffer("axis", torch.linspace(0.0, 1.0, self.size), persistent=False)
         maps = out_channels if args.lws_centroids == "feature" else 1
-        centroids = torch.rand(self.kcps, maps, 2, generator=generator)
-        sigma = torch.eye(2)
+        if args.lws_centroid_init == "grid":  # as the thesis code placed them: k / (n + 1)
+            n = math.isqrt(self.kcps)
+            ticks = torch.arange(1, n + 1) / (n + 1)
+            grid = torch.cartesian_prod(ticks, ticks)  # (S, 2), pair p at row p // n, column p % n
+            centroids = grid[:, None].repeat(1, maps, 1)
+        else:
+            centroids = torch.rand(self.kcps, maps, 2, generator=generator)
+        # Sigma: one per layer; A_s: one per centroid, shaped like the centroids
+        self.metric_name = "sigma" if args.lws_similarity == "sigma" else "matrix"
+        shape = () if self.metric_name == "sigma" else (self.kcps, maps)
+        metric = torch.eye(2).repeat(*shape, 1, 1)
         self.cached_for: tuple[torch.Tensor, torch.Tensor] | None = None  # see similarity_weights
         if args.lws_trainable:
-            self.centroids, self.sigma = nn.Parameter(centroids), nn.Parameter(sigma)
+            self.centroids = nn.Parameter(centroids)
+            self.register_parameter(self.metric_name, nn.Parameter(metric))
         else:
             self.register_buffer("centroids", centroids)
-            self.register_buffer("sigma", sigma)
+            self.register_buffer(self.metric_name, metric)
+
+    def metric(self) -> torch.Tensor:
+        """Sigma (2, 2) or the A_s (S, maps, 2, 2)."""
+        return getattr(self, self.metric_name)
 
     def similarity_weights(self) -> torch.Tensor:
         """S_s / sum_s' S_s' as (H, W, S, maps): the conv output's channels_last order. At every
         output cell they sum to 1 over s."""
         if torch.is_grad_enabled():
             return self.compute_similarity_weights()
-        # acting: the centroids and Sigma change once per rollout (the sync), not per step, so
-        # reuse the weights while both equal those they were computed from
-        cached_for = self.cached_for
+        # acting: the centroids and Sigma (or A_s) change once per rollout (the sync), not per
+        # step, so reuse the weights while both equal those they were computed from
+        cached_for, metric = self.cached_for, self.metric()
         if cached_for is None or not (
-            torch.equal(cached_for[0], self.centroids) and torch.equal(cached_for[1], self.sigma)
+            torch.equal(cached_for[0], self.centroids) and torch.equal(cached_for[1], metric)
         ):
-            self.cached_for = (self.centroids.clone(), self.sigma.clone())
+            self.cached_for = (self.centroids.clone(), metric.clone())
             self.cached_weights = self.compute_similarity_weights()
         return self.cached_weights
 
@@ -237,13 +282,20 @@ class LWSConv2d(nn.Module):
         centroid_rows, centroid_cols = self.centroids.unbind(-1)  # i_s, j_s: (S, maps) each
         rows = (self.axis[:, None, None] - centroid_rows)[:, None]  # i - i_s: (H, 1, S, maps)
         cols = self.axis[:, None, None] - centroid_cols  # j - j_s: (W, S, maps)
-        # (x - mu_s)^T Sigma (x - mu_s), expanded: 7x faster than an einsum over (H, W, S, m, 2)
-        (s00, s01), (s10, s11) = self.sigma
-        distance = s00 * rows.square() + (s01 + s10) * rows * cols + s11 * cols.square()
+        # d^T Q d, expanded: 7x faster than an einsum over (H, W, S, m, 2)
+        if self.metric_name == "sigma":
+            (q00, q01), (q10, q11) = self.sigma  # Q = Sigma
+        else:  # ||A_s d||^2 = d^T A_s^T A_s d
+            (a00, a01), (a10, a11) = self.matrix.permute(2, 3, 0, 1)  # each (S, maps)
+            q00, q11 = a00 * a00 + a10 * a10, a01 * a01 + a11 * a11
+            q01 = q10 = a00 * a01 + a10 * a11
+        distance = q00 * rows.square() + (q01 + q10) * rows * cols + q11 * cols.square()
         # exp(-d_s) / sum_s' exp(-d_s') is a softmax over s; softmax cannot overflow
         return torch.softmax(-distance, dim=2)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.padding is not None:
+            x = F.pad(x, self.padding)  # keeps channels_last
         # the S convolutions' outputs as (B, H, W, S, C): a view of the channels_last output
         y = self.conv(x).permute(0, 2, 3, 1).unflatten(3, (self.kcps, self.out_channels))
         return (y * self.similarity_weights()).sum(3).permute(0, 3, 1, 2)  # (B, C, H, W)
@@ -251,12 +303,17 @@ class LWSConv2d(nn.Module):
 
 class ActorCritic(nn.Module):
     """A3C LWS (thesis 6.1.2): A3C FF with both convolutions replaced by LWS layers: LWS 32 8x8/4,
-    LWS 64 4x4/2, FC 256, softmax policy, linear value.
+    LWS 64 4x4/2, FC 256, softmax policy, linear value. The defaults follow the text; the
+    Figure 6.3 LWS runs were, as run (thesis-notes.md "As run"): --lws-similarity matrix
+    --lws-padding same --lws-second-layer-maps 32 --lws-kernel-init uniform-sqrt3 (FC input
+    11 * 11 * 32), "LWS S" also --lws-kcps 4 --lws-centroid-init grid --lws-centroids group
+    --no-lws-trainable.
 
-    Parameters (S = 3, A actions): 3 * (8*8*4*32 + 4*4*32*64) = 122,880 kernel weights, 288 kernel
-    biases (b_s of eq. 6.1), FC 5184*256 + 256, policy 256*A + A, value 257; in all
-    1,450,785 + 257 A, plus the centroids (feature-wise 3 * (32 + 64) * 2 = 576, group-wise
-    3 * 2 * 2 = 12) and Sigma (2 * 4 = 8) when trainable. The thesis's 1,449,984 + 256 A
+    Parameters with the defaults (S = 3, A actions): 3 * (8*8*4*32 + 4*4*32*64) = 122,880 kernel
+    weights, 288 kernel biases (b_s of eq. 6.1), FC 5184*256 + 256, policy 256*A + A, value 257;
+    in all 1,450,785 + 257 A, plus the centroids (feature-wise 3 * (32 + 64) * 2 = 576,
+    group-wise 3 * 2 * 2 = 12) and Sigma (2 * 4 = 8) when trainable (A_s instead of Sigma:
+    4 per centroid, feature-wise 1,152, group-wise 24). The thesis's 1,449,984 + 256 A
     (6.1.2) counts weights only: 122,880 + 1,327,104 + 256 A; adding the 288 + 256 + A + 257
     biases and value head gives ours. A3C FF here has 1,368,673 + 257 A (weights only:
     1,368,064 + 256 A); the thesis's 1,336,320 + 256 A for it is 31,744 = 4*4*64*31 lower, as if
@@ -266,21 +323,34 @@ class ActorCritic(nn.Module):
         super().__init__()
         if args.lws_kcps < 1:
             raise UsageError(f"--lws-kcps must be >= 1 (got {args.lws_kcps})")
+        maps = args.lws_second_layer_maps
+        if maps < 1:
+            raise UsageError(f"--lws-second-layer-maps must be >= 1 (got {maps})")
+        if args.lws_centroid_init == "grid" and math.isqrt(args.lws_kcps) ** 2 != args.lws_kcps:
+            raise UsageError(
+                f"--lws-centroid-init grid needs a square --lws-kcps: 1, 4, 9, ... "
+                f"(got {args.lws_kcps})"
+            )
         activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
         generator = torch.Generator().manual_seed(args.seed)
+        first = LWSConv2d(4, 32, 8, 4, input_size=84, args=args, generator=generator)
+        second = LWSConv2d(32, maps, 4, 2, input_size=first.size, args=args, generator=generator)
         self.torso = nn.Sequential(  # in-place activations: fewer allocations, same gradients
-            LWSConv2d(4, 32, 8, 4, input_size=84, args=args, generator=generator),
+            first,
             activation(inplace=True),
-            LWSConv2d(32, 64, 4, 2, input_size=20, args=args, generator=generator),
+            second,
             activation(inplace=True),
             nn.Flatten(),
-            nn.Linear(64 * 9 * 9, 256),
+            nn.Linear(maps * second.size * second.size, 256),
             activation(inplace=True),
         )
         self.policy = nn.Linear(256, num_actions)
         self.value = nn.Linear(256, 1)
         self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
         init_parameters(self, args.weight_init, args.bias_init)
+        if args.lws_kernel_init == "uniform-sqrt3":  # as run: tflearn's uniform_scaling, bias 0
+            for layer in (first, second):
+                init_parameters(layer.conv, "uniform-sqrt3", 0.0)
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         # channels_last makes oneDNN's convolution backward about 2x faster on CPU
@@ -437,7 +507,7 @@ class SharedAdam:
 
 def make_optimizer(params: list[torch.Tensor], args: Args) -> SharedRMSprop | SharedAdam:
     if args.optimizer == "adam":
-        return SharedAdam(params, args.adam_beta1, args.rms_decay, args.optim_eps)
+        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
     return SharedRMSprop(params, args.rms_decay, args.optim_eps)
 
 
@@ -679,10 +749,13 @@ def load_checkpoint(path: str) -> dict:
 
 def restore(shared: Shared, checkpoint: dict, args: Args, path: str) -> None:
     for key in NETWORK_ARGS:
-        if checkpoint["args"][key] != getattr(args, key):
+        # a flag newer than the checkpoint counts as its default (a network that differs all the
+        # same fails to load below, with a one-line message)
+        trained = checkpoint["args"].get(key, Args.__dataclass_fields__[key].default)
+        if trained != getattr(args, key):
             raise UsageError(
                 f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
-                f"{checkpoint['args'][key]}, not {getattr(args, key)}"
+                f"{trained}, not {getattr(args, key)}"
             )
     if checkpoint["optimizer_name"] != args.optimizer:
         raise UsageError(

@@ -1,6 +1,8 @@
 # A3C SS: A3C FF whose second convolution feeds a spatial softmax (expected x, y per map).
 # Thesis "Deep Reinforcement Learning of Video Games", section 6.2 (eqs. 6.3, 6.4); the rest is
 # a copy of a3c_ff.py: `diff agents/a3c_ff.py agents/a3c_ss.py` shows the network and its flags.
+# Default: the text's reading (A3C FF's convolutions); --conv-layout final gives the thesis
+# code's final 5x5/3, 3x3/2 network.
 #
 # Processes: the main process owns the shared (global) network and optimizer statistics, logs,
 # checkpoints and watches the others; N workers act and learn Hogwild-style (no locks); one
@@ -69,9 +71,11 @@ class Args:
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
     """the shared optimizer; its statistics live in shared memory and are updated without locks"""
     rms_decay: float = 0.99
-    """RMSprop decay rho of the mean square (also Adam's beta2)"""
+    """RMSprop decay rho of the mean square"""
     adam_beta1: float = 0.9
     """Adam's first-moment decay beta1"""
+    adam_beta2: float = 0.99
+    """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
@@ -92,8 +96,14 @@ class Args:
     """divide frames by 255; default: yes for ALE, no for Catch (the thesis fed Catch 0..255)"""
 
     # Spatial softmax (thesis 6.2)
+    conv_layout: Literal["ff", "final"] = "ff"
+    """the convolutions: ff = A3C FF's conv 32 8x8/4, conv 64 4x4/2 (84 -> 20 -> 9; the thesis
+    text, 6.2.1, and most likely the Figure 6.5 runs); final = the thesis code's final conv 32
+    5x5/3, conv 64 3x3/2 (84 -> 27 -> 13)"""
     ss_temperature: Literal["per-map", "global"] = "per-map"
-    """the softmax temperature: one tau_k per map (A3C SS TT) or one global tau (A3C SS GT TT)"""
+    """the softmax temperature: one tau_k per map (the text's A3C SS TT) or one global tau (the
+    text's A3C SS GT TT). Figure 6.5 as run (the thesis code inverted a flag): "SS" = global,
+    "SS TT" = global with --no-ss-trainable-temperature, "SS GT TT" = per-map"""
     ss_trainable_temperature: bool = True
     """train the temperature by gradient descent; else it stays at its initial value"""
     ss_initial_temperature: float = 0.6
@@ -155,6 +165,7 @@ def resolve_defaults(args: Args) -> Args:
         "--vf-coef": (args.vf_coef, args.vf_coef >= 0, ">= 0"),
         "--rms-decay": (args.rms_decay, 0 <= args.rms_decay < 1, "in [0, 1)"),
         "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
+        "--adam-beta2": (args.adam_beta2, 0 <= args.adam_beta2 < 1, "in [0, 1)"),
         "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
         "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
         "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
@@ -185,7 +196,10 @@ def make_env(env_id: str, *, render_mode: str | None = None, video_dir: str | No
 # The network. Variants (LWS, SS, WW, LSTM, LPQ, GLPQ) replace this class and NETWORK_ARGS.
 # Contract: forward(obs uint8 (B, 4, 84, 84)) -> (log-probabilities (B, A), values (B,)).
 # ----------------------------------------------------------------------------------------------
-NETWORK_ARGS = ("env", "activation", "scale_obs", "ss_temperature", "ss_trainable_temperature")
+# args a checkpoint's network depends on; the initial temperature too, since a fixed one is a
+# buffer that every process builds from it
+NETWORK_ARGS = ("env", "activation", "scale_obs", "conv_layout", "ss_temperature",
+                "ss_trainable_temperature", "ss_initial_temperature")  # fmt: skip
 
 
 class SpatialSoftmax(nn.Module):
@@ -216,19 +230,24 @@ class SpatialSoftmax(nn.Module):
 
 
 class ActorCritic(nn.Module):
-    """A3C SS as run for the thesis (see thesis-notes.md, Networks): conv 32 5x5/3 ReLU,
-    conv 64 3x3/2 (linear), spatial softmax -> 128 coordinates, FC 256, softmax policy, linear
-    value. (The thesis text, 6.2.1, reads as A3C FF's convolutions with the second replaced by the
-    spatial softmax; the as-run network is the one its results come from.)"""
+    """A3C SS (thesis 6.2.1: "the second convolutional layer is replaced by a spatial softmax
+    layer. The remainder of the architecture is identical to that of A3C FF"): conv 32 ReLU,
+    conv 64 (linear), spatial softmax over its 64 maps -> 128 coordinates, FC 256, softmax
+    policy, linear value. The convolutions (--conv-layout): ff (default, the text's reading and
+    most likely the Figure 6.5 runs', see thesis-notes.md "As run") 8x8/4 and 4x4/2, 9x9 maps;
+    final (the thesis code's final network) 5x5/3 and 3x3/2, 13x13 maps."""
 
     def __init__(self, num_actions: int, args: Args):
         super().__init__()
         activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
+        # (kernel, stride) of each convolution: 84 -> 20 -> 9 (ff) or 84 -> 27 -> 13 (final)
+        (k1, s1), (k2, s2) = {"ff": ((8, 4), (4, 2)), "final": ((5, 3), (3, 2))}[args.conv_layout]
+        size = ((84 - k1) // s1 + 1 - k2) // s2 + 1  # the second convolution's output size
         self.torso = nn.Sequential(  # in-place activations: fewer allocations, same gradients
-            nn.Conv2d(4, 32, 5, stride=3),  # 84 -> 27
+            nn.Conv2d(4, 32, k1, stride=s1),
             activation(inplace=True),
-            nn.Conv2d(32, 64, 3, stride=2),  # 27 -> 13, no activation: the softmax follows
-            SpatialSoftmax(64, 13, args),
+            nn.Conv2d(32, 64, k2, stride=s2),  # no activation: the softmax follows
+            SpatialSoftmax(64, size, args),
             nn.Linear(2 * 64, 256),
             activation(inplace=True),
         )
@@ -392,7 +411,7 @@ class SharedAdam:
 
 def make_optimizer(params: list[torch.Tensor], args: Args) -> SharedRMSprop | SharedAdam:
     if args.optimizer == "adam":
-        return SharedAdam(params, args.adam_beta1, args.rms_decay, args.optim_eps)
+        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
     return SharedRMSprop(params, args.rms_decay, args.optim_eps)
 
 
@@ -634,10 +653,13 @@ def load_checkpoint(path: str) -> dict:
 
 def restore(shared: Shared, checkpoint: dict, args: Args, path: str) -> None:
     for key in NETWORK_ARGS:
-        if checkpoint["args"][key] != getattr(args, key):
+        # a flag newer than the checkpoint counts as its default (a network that differs all the
+        # same fails to load below, with a one-line message)
+        trained = checkpoint["args"].get(key, Args.__dataclass_fields__[key].default)
+        if trained != getattr(args, key):
             raise UsageError(
                 f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
-                f"{checkpoint['args'][key]}, not {getattr(args, key)}"
+                f"{trained}, not {getattr(args, key)}"
             )
     if checkpoint["optimizer_name"] != args.optimizer:
         raise UsageError(

@@ -1,7 +1,8 @@
 # A3C WW ("what and where"): A3C FF whose second convolution's maps go partly through ReLU
 # (what) and partly through a spatial softmax (where). Thesis "Deep Reinforcement Learning of
 # Video Games", section 6.2.1; the rest is a copy of a3c_ff.py: `diff agents/a3c_ff.py
-# agents/a3c_ww.py` shows the network and its flags.
+# agents/a3c_ww.py` shows the network and its flags. Default: the text's reading (A3C FF's
+# convolutions, 6.4); --conv-layout final gives the thesis code's final 5x5/3, 3x3/2 network.
 #
 # Processes: the main process owns the shared (global) network and optimizer statistics, logs,
 # checkpoints and watches the others; N workers act and learn Hogwild-style (no locks); one
@@ -70,9 +71,11 @@ class Args:
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
     """the shared optimizer; its statistics live in shared memory and are updated without locks"""
     rms_decay: float = 0.99
-    """RMSprop decay rho of the mean square (also Adam's beta2)"""
+    """RMSprop decay rho of the mean square"""
     adam_beta1: float = 0.9
     """Adam's first-moment decay beta1"""
+    adam_beta2: float = 0.99
+    """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
@@ -93,8 +96,14 @@ class Args:
     """divide frames by 255; default: yes for ALE, no for Catch (the thesis fed Catch 0..255)"""
 
     # Spatial softmax (thesis 6.2)
+    conv_layout: Literal["ff", "final"] = "ff"
+    """the convolutions: ff = A3C FF's conv 32 8x8/4, conv 64 4x4/2 (84 -> 20 -> 9; the thesis
+    text, 6.4, and most likely the Figure 6.5 runs); final = the thesis code's final conv 32
+    5x5/3, conv 64 3x3/2 (84 -> 27 -> 13)"""
     ss_temperature: Literal["per-map", "global"] = "per-map"
-    """the softmax temperature: one tau_k per map (A3C SS TT) or one global tau (A3C SS GT TT)"""
+    """the softmax temperature: one tau_k per map (the text's A3C SS TT) or one global tau (the
+    text's A3C SS GT TT). As run (the thesis code inverted a flag): Figure 6.5's WW = global;
+    Figure 6.9's WW = per-map with --ss-initial-temperature 1"""
     ss_trainable_temperature: bool = True
     """train the temperature by gradient descent; else it stays at its initial value"""
     ss_initial_temperature: float = 0.6
@@ -159,6 +168,7 @@ def resolve_defaults(args: Args) -> Args:
         "--vf-coef": (args.vf_coef, args.vf_coef >= 0, ">= 0"),
         "--rms-decay": (args.rms_decay, 0 <= args.rms_decay < 1, "in [0, 1)"),
         "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
+        "--adam-beta2": (args.adam_beta2, 0 <= args.adam_beta2 < 1, "in [0, 1)"),
         "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
         "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
         "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
@@ -189,8 +199,10 @@ def make_env(env_id: str, *, render_mode: str | None = None, video_dir: str | No
 # The network. Variants (LWS, SS, WW, LSTM, LPQ, GLPQ) replace this class and NETWORK_ARGS.
 # Contract: forward(obs uint8 (B, 4, 84, 84)) -> (log-probabilities (B, A), values (B,)).
 # ----------------------------------------------------------------------------------------------
-NETWORK_ARGS = ("env", "activation", "scale_obs", "ss_temperature", "ss_trainable_temperature",
-                "ww_where_maps")  # fmt: skip
+# args a checkpoint's network depends on; the initial temperature too, since a fixed one is a
+# buffer that every process builds from it
+NETWORK_ARGS = ("env", "activation", "scale_obs", "conv_layout", "ss_temperature",
+                "ss_trainable_temperature", "ss_initial_temperature", "ww_where_maps")  # fmt: skip
 
 
 class SpatialSoftmax(nn.Module):
@@ -221,11 +233,13 @@ class SpatialSoftmax(nn.Module):
 
 
 class ActorCritic(nn.Module):
-    """A3C WW as run for the thesis (see thesis-notes.md, Networks): conv 32 5x5/3 ReLU,
-    conv 64 3x3/2; of its 64 maps, 32 go through ReLU and are flattened (what, 32 * 13 * 13
-    values) and 32 through a spatial softmax (where, 2 * 32 coordinates); both feed FC 256,
-    then the softmax policy and linear value. (The thesis text, 6.2.1, says only that the rest
-    is identical to A3C FF; the as-run convolutions are those of A3C SS.)"""
+    """A3C WW (thesis 6.2.1, 6.4): conv 32 ReLU, conv 64; of its 64 maps, 32 go through ReLU and
+    are flattened (what, 32 * n * n values) and 32 through a spatial softmax (where, 2 * 32
+    coordinates); both feed FC 256, then the softmax policy and linear value. The convolutions
+    (--conv-layout): ff (default; 6.4: "The FF and WW architectures have two convolution layers
+    with the same kernel size (8x8 and 4x4) and strides", and most likely the Figure 6.5 runs',
+    see thesis-notes.md "As run") 8x8/4 and 4x4/2, n = 9; final (the thesis code's final
+    network) 5x5/3 and 3x3/2, n = 13."""
 
     def __init__(self, num_actions: int, args: Args):
         super().__init__()
@@ -233,15 +247,18 @@ class ActorCritic(nn.Module):
             raise UsageError(f"--ww-where-maps must be in [0, 64] (got {args.ww_where_maps})")
         activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
         self.what_maps = 64 - args.ww_where_maps
+        # (kernel, stride) of each convolution: 84 -> 20 -> 9 (ff) or 84 -> 27 -> 13 (final)
+        (k1, s1), (k2, s2) = {"ff": ((8, 4), (4, 2)), "final": ((5, 3), (3, 2))}[args.conv_layout]
+        size = ((84 - k1) // s1 + 1 - k2) // s2 + 1  # the second convolution's output size
         self.convs = nn.Sequential(
-            nn.Conv2d(4, 32, 5, stride=3),  # 84 -> 27
+            nn.Conv2d(4, 32, k1, stride=s1),
             activation(inplace=True),  # fewer allocations, same gradients
-            nn.Conv2d(32, 64, 3, stride=2),  # 27 -> 13; each branch applies its own nonlinearity
+            nn.Conv2d(32, 64, k2, stride=s2),  # each branch applies its own nonlinearity
         )
         self.what = nn.Sequential(activation(), nn.Flatten())  # not in place: a slice of maps
-        self.where = SpatialSoftmax(args.ww_where_maps, 13, args)
+        self.where = SpatialSoftmax(args.ww_where_maps, size, args)
         self.fc = nn.Sequential(
-            nn.Linear(self.what_maps * 13 * 13 + 2 * args.ww_where_maps, 256),
+            nn.Linear(self.what_maps * size * size + 2 * args.ww_where_maps, 256),
             activation(inplace=True),
         )
         self.policy = nn.Linear(256, num_actions)
@@ -406,7 +423,7 @@ class SharedAdam:
 
 def make_optimizer(params: list[torch.Tensor], args: Args) -> SharedRMSprop | SharedAdam:
     if args.optimizer == "adam":
-        return SharedAdam(params, args.adam_beta1, args.rms_decay, args.optim_eps)
+        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
     return SharedRMSprop(params, args.rms_decay, args.optim_eps)
 
 
@@ -648,10 +665,13 @@ def load_checkpoint(path: str) -> dict:
 
 def restore(shared: Shared, checkpoint: dict, args: Args, path: str) -> None:
     for key in NETWORK_ARGS:
-        if checkpoint["args"][key] != getattr(args, key):
+        # a flag newer than the checkpoint counts as its default (a network that differs all the
+        # same fails to load below, with a one-line message)
+        trained = checkpoint["args"].get(key, Args.__dataclass_fields__[key].default)
+        if trained != getattr(args, key):
             raise UsageError(
                 f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
-                f"{checkpoint['args'][key]}, not {getattr(args, key)}"
+                f"{trained}, not {getattr(args, key)}"
             )
     if checkpoint["optimizer_name"] != args.optimizer:
         raise UsageError(

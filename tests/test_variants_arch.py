@@ -58,8 +58,9 @@ def lws_layer(
     out_channels: int = 32,
     kernel: int = 8,
     stride: int = 4,
+    **flags,
 ):
-    args = lws.Args(lws_kcps=kcps, lws_centroids=centroids, lws_trainable=trainable)
+    args = lws.Args(lws_kcps=kcps, lws_centroids=centroids, lws_trainable=trainable, **flags)
     generator = torch.Generator().manual_seed(0)
     return lws.LWSConv2d(4, out_channels, kernel, stride, size, args, generator)
 
@@ -241,6 +242,165 @@ def test_lws_bad_kcps_is_a_usage_error(lws):
         lws.ActorCritic(3, lws.Args(lws_kcps=0))
 
 
+# The as-run options (thesis-notes.md "As run", sisws.py): --lws-similarity matrix,
+# --lws-padding same, --lws-second-layer-maps, --lws-kernel-init, --lws-centroid-init
+
+
+def test_lws_matrix_similarity_matches_numpy(lws):
+    # group-wise, S = 2, a 3x3 output grid (coordinates 0, 0.5, 1), a 2x2 A_s per centroid
+    layer = lws_layer(
+        lws, kcps=2, centroids="group", size=9, out_channels=1, kernel=3, stride=3,
+        lws_similarity="matrix",
+    )  # fmt: skip
+    assert layer.matrix.shape == (2, 1, 2, 2) and not hasattr(layer, "sigma")
+    mu = np.array([[0.2, 0.9], [0.7, 0.1]])
+    a = np.array([[[1.5, -0.4], [0.3, 0.8]], [[0.6, 1.2], [-0.9, 2.0]]])
+    with torch.no_grad():
+        layer.centroids.copy_(torch.tensor(mu[:, None], dtype=torch.float32))
+        layer.matrix.copy_(torch.tensor(a[:, None], dtype=torch.float32))
+    weights = layer.similarity_weights().detach().numpy()  # (H, W, S, maps)
+    for i in range(3):
+        for j in range(3):
+            x = np.array([i / 2, j / 2])
+            sim = np.array([np.exp(-np.sum((a[s] @ (x - mu[s])) ** 2)) for s in range(2)])
+            np.testing.assert_allclose(weights[i, j, :, 0], sim / sim.sum(), rtol=1e-5)
+
+
+def test_lws_matrix_weights_sum_to_one_and_equal_sigma_at_the_identity(lws):
+    torch.manual_seed(12)
+    matrix = lws_layer(lws, kcps=3, lws_similarity="matrix")
+    sigma = lws_layer(lws, kcps=3)
+    assert matrix.matrix.shape == (3, 32, 2, 2)  # per pair and map: shaped like the centroids
+    torch.testing.assert_close(matrix.matrix, torch.eye(2).expand(3, 32, 2, 2))
+    centroids = torch.rand(3, 32, 2) * 2 - 0.5
+    set_lws(sigma, centroids, torch.eye(2))
+    with torch.no_grad():
+        matrix.centroids.copy_(centroids)
+    torch.testing.assert_close(matrix.similarity_weights(), sigma.similarity_weights())
+    with torch.no_grad():
+        matrix.matrix.copy_(torch.randn(3, 32, 2, 2) * 2)
+    weights = matrix.similarity_weights()
+    assert torch.isfinite(weights).all() and (weights >= 0).all()
+    torch.testing.assert_close(weights.sum(2), torch.ones(20, 20, 32))
+
+
+def test_lws_matrix_acting_cache_follows_the_matrices(lws):
+    torch.manual_seed(13)
+    layer = lws_layer(lws, kcps=3, lws_similarity="matrix")
+    x = torch.rand(1, 4, 84, 84) * 255
+    with torch.inference_mode():
+        before = layer(x)
+    with torch.no_grad():  # the worker's sync: in place, the centroids unchanged
+        layer.matrix.copy_(torch.randn(3, 32, 2, 2) * 3)
+    expected = layer(x)
+    with torch.inference_mode():
+        after = layer(x)
+    torch.testing.assert_close(after, expected)
+    assert not torch.allclose(after, before)
+
+
+@pytest.mark.parametrize("trainable", [True, False])
+def test_lws_matrix_is_trained_only_when_trainable(lws, trainable):
+    torch.manual_seed(14)
+    args = lws.Args(lws_similarity="matrix", lws_trainable=trainable, lws_centroids="group")
+    net = lws.ActorCritic(3, args)
+    names = {name for name, _ in net.named_parameters()}
+    assert ("torso.0.matrix" in names) == trainable and "torso.0.sigma" not in names
+    assert net.state_dict()["torso.2.matrix"].shape == (3, 1, 2, 2)
+    log_probs, values = net(torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8))
+    (log_probs[:, 0].sum() + values.sum()).backward()
+    if trainable:
+        assert net.torso[0].matrix.grad.abs().sum() > 0
+
+
+def test_lws_same_padding_is_tensorflow_s(lws):
+    """TF 'same': ceil(in / stride) outputs, padding split with the odd pixel at the bottom and
+    right. 7x7, kernel 4, stride 2: 4x4 outputs, 3 pixels of padding: 1 before, 2 after."""
+    layer = lws_layer(
+        lws, kcps=1, centroids="group", size=7, out_channels=1, kernel=4, stride=2,
+        lws_padding="same",
+    )  # fmt: skip
+    assert layer.size == 4 and layer.padding == (1, 2, 1, 2)
+    torch.manual_seed(15)
+    x = torch.randn(1, 4, 7, 7)
+    w = layer.conv.weight.detach().numpy()[0]  # (4, 4, 4)
+    b = layer.conv.bias.item()
+    padded = np.zeros((4, 10, 10))
+    padded[:, 1:8, 1:8] = x[0].numpy()
+    expected = np.array(
+        [[(padded[:, 2 * i : 2 * i + 4, 2 * j : 2 * j + 4] * w).sum() + b for j in range(4)]
+         for i in range(4)]
+    )  # fmt: skip
+    np.testing.assert_allclose(layer(x)[0, 0].detach().numpy(), expected, rtol=1e-4, atol=1e-4)
+    # Conv2d's symmetric padding (1 on every side) gives another, smaller output
+    assert F.conv2d(x, layer.conv.weight, stride=2, padding=1).shape[-1] == 3
+
+
+@pytest.mark.parametrize(("padding", "sizes"), [("valid", (20, 9)), ("same", (21, 11))])
+@pytest.mark.parametrize("maps", [64, 32])
+def test_lws_padding_and_second_layer_maps_shape_the_network(lws, padding, sizes, maps):
+    net = lws.ActorCritic(3, lws.Args(lws_padding=padding, lws_second_layer_maps=maps))
+    first, second = net.torso[0], net.torso[2]
+    assert (first.size, second.size) == sizes
+    if padding == "same":  # 84: 4 pixels of padding, 2 + 2; 21: 3 pixels, 1 + 2
+        assert first.padding == (2, 2, 2, 2) and second.padding == (1, 2, 1, 2)
+    x = torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8)
+    hidden = net.torso[:2](x.float())
+    assert hidden.shape == (2, 32, sizes[0], sizes[0])
+    assert net.torso[2](hidden).shape == (2, maps, sizes[1], sizes[1])
+    assert net.torso[5].in_features == maps * sizes[1] ** 2  # as run: 11 * 11 * 64 = 7,744
+    log_probs, values = net(x)
+    assert torch.isfinite(log_probs).all() and torch.isfinite(values).all()
+    torch.testing.assert_close(log_probs.exp().sum(1), torch.ones(2))
+
+
+def test_lws_uniform_sqrt3_kernel_init(lws):
+    torch.manual_seed(16)
+    net = lws.ActorCritic(3, lws.Args(lws_kernel_init="uniform-sqrt3"))
+    for layer, fan_in in ((net.torso[0].conv, 4 * 8 * 8), (net.torso[2].conv, 32 * 4 * 4)):
+        bound = math.sqrt(3 / fan_in)
+        weights = layer.weight.abs()
+        assert weights.max() <= bound and weights.max() > 0.95 * bound
+        assert weights.mean().item() == pytest.approx(bound / 2, rel=0.05)  # uniform
+        assert not layer.bias.any()
+    fc = net.torso[5]  # keeps --weight-init torch: U(+-1/sqrt(fan_in)), biases too
+    assert fc.weight.abs().max() <= 1 / math.sqrt(5184) and fc.bias.any()
+    default = lws.ActorCritic(3, lws.Args())
+    assert default.torso[0].conv.weight.abs().max() <= 1 / math.sqrt(256)
+    assert default.torso[0].conv.bias.any()
+
+
+@pytest.mark.parametrize("centroids", ["feature", "group"])
+def test_lws_grid_centroids(lws, centroids):
+    args = lws.Args(lws_kcps=4, lws_centroid_init="grid", lws_centroids=centroids)
+    net = lws.ActorCritic(3, args)
+    third = 1 / 3  # as the thesis code: k / (n + 1) for n = 2
+    grid = torch.tensor([[third, third], [third, 2 * third], [2 * third, third], [2 * third] * 2])
+    for layer, maps in ((net.torso[0], 32), (net.torso[2], 64)):
+        maps = maps if centroids == "feature" else 1
+        torch.testing.assert_close(layer.centroids.detach(), grid[:, None].expand(4, maps, 2))
+    one = lws.ActorCritic(3, lws.Args(lws_kcps=1, lws_centroid_init="grid", lws_trainable=False))
+    torch.testing.assert_close(one.torso[0].centroids, torch.full((1, 32, 2), 0.5))
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        ({"lws_centroid_init": "grid"}, "--lws-centroid-init grid needs a square --lws-kcps"),
+        ({"lws_centroid_init": "grid", "lws_kcps": 8}, "1, 4, 9, ... (got 8)"),
+        ({"lws_second_layer_maps": 0}, "--lws-second-layer-maps must be >= 1 (got 0)"),
+    ],
+)
+def test_lws_bad_shapes_are_usage_errors(lws, flags, message):
+    with pytest.raises(lws.UsageError, match=re.escape(message)):
+        lws.ActorCritic(3, lws.Args(**flags))
+
+
+def test_lws_network_args_hold_the_shaping_flags(lws):
+    for key in ("lws_similarity", "lws_padding", "lws_second_layer_maps", "lws_centroid_init"):
+        assert key in lws.NETWORK_ARGS
+
+
 # ---------------------------------------------------------------------------------------------
 # Spatial softmax (thesis 6.2, eqs. 6.3 and 6.4)
 
@@ -327,22 +487,52 @@ def test_spatial_softmax_per_map_temperatures_apply_to_their_map(ss):
     assert out[2].item() == pytest.approx((0.5 * r3 - 0.5) / (3 + r3), abs=1e-6)  # tau 2
 
 
-def test_ss_network_as_run(ss):
-    net = ss.ActorCritic(3, ss.Args())
+# --conv-layout: (kernel, stride) of each convolution and the grid sizes after them
+LAYOUTS = {"ff": (((8, 8), (4, 4)), ((4, 4), (2, 2)), 20, 9),
+           "final": (((5, 5), (3, 3)), ((3, 3), (2, 2)), 27, 13)}  # fmt: skip
+
+
+@pytest.mark.parametrize("layout", ["ff", "final"])
+def test_ss_network_layouts(ss, layout):
+    (kernel1, stride1), (kernel2, stride2), size1, size2 = LAYOUTS[layout]
+    net = ss.ActorCritic(3, ss.Args(conv_layout=layout))
     convs = [m for m in net.modules() if isinstance(m, nn.Conv2d)]
     assert [(c.out_channels, c.kernel_size, c.stride) for c in convs] == [
-        (32, (5, 5), (3, 3)),
-        (64, (3, 3), (2, 2)),
+        (32, kernel1, stride1),
+        (64, kernel2, stride2),
     ]
     x = torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8)
+    assert net.torso[:2](x.float()).shape == (2, 32, size1, size1)
     maps = net.torso[:3](x.float())
-    assert maps.shape == (2, 64, 13, 13)
-    assert net.torso[3](maps).shape == (2, 128)
+    assert maps.shape == (2, 64, size2, size2)
+    assert net.torso[3].coordinates.shape == (size2 * size2, 2)  # the grid follows the maps
+    assert net.torso[3](maps).shape == (2, 128) and net.torso[4].in_features == 128
     assert (maps < 0).any(), "the second convolution is linear: no ReLU before the softmax"
     log_probs, values = net(x)
     assert log_probs.shape == (2, 3) and values.shape == (2,)
-    # conv 4*25*32 + 32, conv 32*9*64 + 64, 64 temperatures, FC 128*256 + 256, heads 257 * 4
-    assert count_parameters(net) == 3232 + 18496 + 64 + 33024 + 257 * 4
+    assert torch.isfinite(log_probs).all() and torch.isfinite(values).all()
+    torch.testing.assert_close(log_probs.exp().sum(1), torch.ones(2))
+    # conv 1 and 2 (weights + biases), 64 temperatures, FC 128*256 + 256, heads 257 * 4
+    conv_params = {"ff": 8224 + 32832, "final": 3232 + 18496}[layout]
+    assert count_parameters(net) == conv_params + 64 + 33024 + 257 * 4
+
+
+def test_ss_and_ww_default_to_the_text_s_ff_convolutions(ss, ww):
+    assert ss.Args().conv_layout == ww.Args().conv_layout == "ff"
+    for module in (ss, ww):
+        assert "conv_layout" in module.NETWORK_ARGS  # a checkpoint's network depends on it
+
+
+@pytest.mark.parametrize("layout", ["ff", "final"])
+def test_ss_one_hot_corner_maps_to_the_grid_corners(ss, layout):
+    """The coordinates span [-0.5, 0.5] over the second convolution's grid, whatever its size."""
+    size = LAYOUTS[layout][3]
+    net = ss.ActorCritic(3, ss.Args(conv_layout=layout))
+    features = torch.zeros(1, 64, size, size)
+    features[0, 0, 0, size - 1] = features[0, 1, size - 1, 0] = 100.0  # top right, bottom left
+    out = net.torso[3](features).view(64, 2).detach()
+    np.testing.assert_allclose(out[0].numpy(), [0.5, -0.5], atol=1e-5)
+    np.testing.assert_allclose(out[1].numpy(), [-0.5, 0.5], atol=1e-5)
 
 
 def test_ss_bad_temperature_is_a_usage_error(ss):
@@ -354,11 +544,13 @@ def test_ss_bad_temperature_is_a_usage_error(ss):
 # What and where (thesis 6.2.1)
 
 
+@pytest.mark.parametrize("layout", ["ff", "final"])
 @pytest.mark.parametrize("where_maps", [32, 0, 64, 10])
-def test_ww_routes_maps_to_relu_and_spatial_softmax(ww, where_maps):
+def test_ww_routes_maps_to_relu_and_spatial_softmax(ww, where_maps, layout):
     torch.manual_seed(5)
-    net = ww.ActorCritic(3, ww.Args(ww_where_maps=where_maps))
-    assert net.fc[0].in_features == (64 - where_maps) * 13 * 13 + 2 * where_maps
+    size = LAYOUTS[layout][3]
+    net = ww.ActorCritic(3, ww.Args(ww_where_maps=where_maps, conv_layout=layout))
+    assert net.fc[0].in_features == (64 - where_maps) * size * size + 2 * where_maps
     x = torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8)
     captured = {}
     net.fc.register_forward_hook(lambda _m, inputs, _o: captured.update(fc_input=inputs[0]))
@@ -367,9 +559,27 @@ def test_ww_routes_maps_to_relu_and_spatial_softmax(ww, where_maps):
     what, where = maps[:, : 64 - where_maps], maps[:, 64 - where_maps :]
     expected = torch.cat([F.relu(what).flatten(1), net.where(where)], dim=1)
     torch.testing.assert_close(captured["fc_input"], expected, rtol=1e-4, atol=1e-4)
-    if where_maps == 32:  # the default: 32 * 169 "what" values, then 64 "where" coordinates
-        coordinates = captured["fc_input"][:, 32 * 169 :]
+    if where_maps == 32:  # the default: 32 * size^2 "what" values, then 64 "where" coordinates
+        coordinates = captured["fc_input"][:, 32 * size * size :]
         assert coordinates.shape == (2, 64) and coordinates.abs().max() <= 0.5
+
+
+@pytest.mark.parametrize("layout", ["ff", "final"])
+def test_ww_network_layouts(ww, layout):
+    (kernel1, stride1), (kernel2, stride2), size1, size2 = LAYOUTS[layout]
+    net = ww.ActorCritic(3, ww.Args(conv_layout=layout))
+    convs = [(c.out_channels, c.kernel_size, c.stride) for c in net.convs if hasattr(c, "stride")]
+    assert convs == [(32, kernel1, stride1), (64, kernel2, stride2)]
+    x = torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8)
+    assert net.convs[:2](x.float()).shape == (2, 32, size1, size1)
+    assert net.convs(x.float()).shape == (2, 64, size2, size2)
+    assert net.where.coordinates.shape == (size2 * size2, 2)
+    # 32 * 9 * 9 + 64 = 2,656 (ff) or 32 * 13 * 13 + 64 = 5,472 (final)
+    assert net.fc[0].in_features == {"ff": 2656, "final": 5472}[layout] == 32 * size2**2 + 64
+    log_probs, values = net(x)
+    assert log_probs.shape == (2, 3) and values.shape == (2,)
+    assert torch.isfinite(log_probs).all() and torch.isfinite(values).all()
+    torch.testing.assert_close(log_probs.exp().sum(1), torch.ones(2))
 
 
 def test_ww_bad_split_is_a_usage_error(ww):
@@ -521,3 +731,59 @@ def test_lws_fixed_group_wise_centroids_run_and_resume_only_with_their_seed(tmp_
     result = run("a3c_lws", *TINY, *flags[:3], "--seed", "2", *resume)
     assert result.returncode == 2
     assert "--seed 1, not 2" in result.stderr
+
+
+# The thesis's figures as run (thesis-notes.md "As run"): tiny runs with the non-default flags
+AS_RUN = {
+    "a3c_ss": ["--conv-layout", "final", "--ss-temperature", "global",
+               "--no-ss-trainable-temperature", "--optimizer", "adam", "--adam-beta2", "0.999"],
+    "a3c_ww": ["--conv-layout", "final", "--ss-temperature", "global"],
+    "a3c_lws": ["--lws-similarity", "matrix", "--lws-padding", "same",
+                "--lws-second-layer-maps", "32", "--lws-kernel-init", "uniform-sqrt3",
+                "--lws-kcps", "4", "--lws-centroid-init", "grid", "--lws-centroids", "group",
+                "--no-lws-trainable"],
+}  # fmt: skip
+TINIEST = ["--num-workers", "1", "--total-timesteps", "200", "--eval-interval", "100",
+           "--eval-episodes", "1"]  # fmt: skip
+
+
+@pytest.mark.parametrize("name", AS_RUN)
+def test_as_run_flags_run_evaluate_and_resume_only_with_the_same_network(tmp_path, name):
+    result = run(name, *TINIEST, *AS_RUN[name], "--run-dir", str(tmp_path), timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert evaluation_steps(tmp_path)[-1] >= 200
+    result = run(name, "--evaluate", str(tmp_path / "checkpoint.pt"), "--eval-episodes", "1")
+    assert result.returncode == 0, result.stderr  # the checkpoint's flags rebuild its network
+    # resuming with one network flag back at its default is refused: NETWORK_ARGS holds it
+    flag, value, default = ("--conv-layout", "final", "ff") if name != "a3c_lws" else (
+        "--lws-padding", "same", "valid")  # fmt: skip
+    at = AS_RUN[name].index(flag)
+    others = AS_RUN[name][:at] + AS_RUN[name][at + 2 :]
+    resume = ["--resume", str(tmp_path / "checkpoint.pt"), "--total-timesteps", "400"]
+    result = run(name, *TINIEST[:2], *others, *resume, timeout=60)
+    assert result.returncode == 2
+    assert f"was trained with {flag} {value}, not {default}" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("name", "flags", "message"),
+    [
+        ("a3c_ss", ["--conv-layout", "nine"], "'ff', 'final'"),
+        ("a3c_ww", ["--conv-layout", "nine"], "'ff', 'final'"),
+        ("a3c_ss", ["--adam-beta2", "1"], "error: --adam-beta2 must be in [0, 1) (got 1.0)"),
+        ("a3c_lws", ["--lws-similarity", "cosine"], "'sigma', 'matrix'"),
+        ("a3c_lws", ["--lws-padding", "full"], "'valid', 'same'"),
+        ("a3c_lws", ["--lws-kernel-init", "he"], "'default', 'uniform-sqrt3'"),
+        ("a3c_lws", ["--lws-centroid-init", "ring"], "'uniform', 'grid'"),
+        ("a3c_lws", ["--lws-second-layer-maps", "0"], "error: --lws-second-layer-maps must"),
+        ("a3c_lws", ["--lws-centroid-init", "grid"], "error: --lws-centroid-init grid needs"),
+    ],
+)
+def test_bad_as_run_flags_exit_2_naming_the_valid_values(tmp_path, name, flags, message):
+    result = run(name, *flags, "--total-timesteps", "100", "--run-dir", str(tmp_path), timeout=60)
+    assert result.returncode == 2
+    if message.startswith("error: "):  # ours: one line
+        assert result.stderr.strip().splitlines() == [result.stderr.strip()], result.stderr
+        assert result.stderr.startswith(message), result.stderr
+    else:  # tyro's box around a Literal's choices; unwrap it
+        assert message in re.sub(r"[\s│]+", " ", result.stderr), result.stderr
