@@ -25,6 +25,10 @@ table printed on stdout.
 
 The table printed on stdout (markdown) gives, per configuration, the runs (ok/all), the bar's
 value and the mean over all evaluations, ready for a README.
+
+Reference values (`--reference LABEL=VALUE`, repeatable), e.g. the thesis's bar values
+(`--reference "A3C FF=0.73"`), are drawn as a hatched bar beside that configuration's bar and
+added to the table as a column "reference".
 """
 
 from __future__ import annotations
@@ -122,8 +126,10 @@ def plot(
     bar_range: tuple[float, float],
     title: str | None = None,
     log_x: bool = True,
+    references: dict[str, float] | None = None,
 ) -> None:
-    """Draw the figure (two curve panels above, the bar chart below) into the PNG `out`."""
+    """Draw the figure (two curve panels above, the bar chart below) into the PNG `out`. A
+    configuration with a reference value gets a hatched bar of that value beside its own."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -141,6 +147,9 @@ def plot(
         all_scores = np.concatenate([t["score_all"] for t in tables] + [t["score"] for t in tables])
         y_max = 1.0 if all_scores.size == 0 or all_scores.max() <= 1.0 else None
         x_text = f"log10({x_label})" if log_x else x_label
+        references = references or {}
+        # with reference values, each configuration's bar shares its slot with its reference
+        width, shift = (0.38, 0.2) if references else (0.6, 0.0)
         for i, (table, label) in enumerate(zip(tables, labels, strict=True)):
             color = colors[i % len(colors)]
             x = np.log10(table["values"]) if log_x else table["values"]
@@ -150,10 +159,26 @@ def plot(
                 ax.plot(curve_x, curve_y, color=color, linewidth=3, label=label)
             bar = bar_value(table["values"], table["score"], bar_range)
             error = bar["sem"] if bar["n"] > 1 else 0.0
-            bars.bar(i, bar["mean"], width=0.6, color=color, yerr=error, capsize=6)
+            bars.bar(i - shift, bar["mean"], width=width, color=color, yerr=error, capsize=6)
             if bar["n"]:
                 text = f"{bar['mean']:.3f} (n={bar['n']})"
-                bars.text(i, bar["mean"] + error, text, ha="center", va="bottom", fontsize=11)
+                bars.text(
+                    i - shift, bar["mean"] + error, text, ha="center", va="bottom", fontsize=11
+                )
+            if label in references:
+                value = references[label]
+                bars.bar(
+                    i + shift,
+                    value,
+                    width=width,
+                    facecolor="none",
+                    edgecolor=color,
+                    hatch="//",
+                    linewidth=1.5,
+                )
+                bars.text(
+                    i + shift, value, f"ref. {value:g}", ha="center", va="bottom", fontsize=11
+                )
         for ax, _, y_text in panels:
             ax.set_xlim(*x_range)
             ax.set_ylim(0, y_max)
@@ -172,13 +197,21 @@ def plot(
         plt.close(fig)
 
 
-def summary_table(tables: list[dict], labels: list[str], bar_range: tuple[float, float]) -> str:
-    """A markdown table: runs, the bar's mean (+- standard error) and the all-evaluations mean."""
+def summary_table(
+    tables: list[dict],
+    labels: list[str],
+    bar_range: tuple[float, float],
+    references: dict[str, float] | None = None,
+    x_name: str = "lr",
+) -> str:
+    """A markdown table: runs, the bar's mean (+- standard error) over the runs with x_name in
+    bar_range and the all-evaluations mean; with reference values, a column of them."""
     low, high = (f"{v:g}" for v in bar_range)
+    extra = " reference |" if references else ""
     lines = [
-        f"| configuration | runs ok/all | score (final 5), lr in [{low}, {high}] "
-        "| score (all evaluations), same runs |",
-        "|---|---|---|---|",
+        f"| configuration | runs ok/all | score (final 5), {x_name} in [{low}, {high}] "
+        f"| score (all evaluations), same runs |{extra}",
+        "|---|---|---|---|" + ("---|" if references else ""),
     ]
     for table, label in zip(tables, labels, strict=True):
         bar = bar_value(table["values"], table["score"], bar_range)
@@ -188,6 +221,8 @@ def summary_table(tables: list[dict], labels: list[str], bar_range: tuple[float,
             f"| {label} | {table['ok']}/{table['runs']} | {bar['mean']:.3f}{sem} (n={bar['n']}) "
             f"| {all_evals['mean']:.3f} |"
         )
+        if references:
+            lines[-1] += f" {references[label]:g} |" if label in references else "  |"
     return "\n".join(lines)
 
 
@@ -224,11 +259,32 @@ def main(argv: list[str] | None = None) -> int:
         help="x values averaged in the bar chart (default: 1e-5 1e-2)",
     )
     parser.add_argument("--title", default=None)
+    parser.add_argument(
+        "--reference",
+        action="append",
+        default=[],
+        metavar="LABEL=VALUE",
+        help="a reference bar value for the configuration LABEL (e.g. the thesis's), drawn "
+        "beside its bar and added to the table; repeatable",
+    )
     args = parser.parse_args(argv)
     labels = args.labels or [Path(t).resolve().parent.name for t in args.tables]
     if len(labels) != len(args.tables):
         print(f"error: {len(args.tables)} tables but {len(labels)} labels", file=sys.stderr)
         return 2
+    references = {}
+    for text in args.reference:
+        label, _, value = text.rpartition("=")
+        try:
+            references[label] = float(value)
+        except ValueError:
+            label = ""
+        if label not in labels:
+            print(
+                f"error: --reference {text!r}: expected LABEL=VALUE with LABEL one of {labels}",
+                file=sys.stderr,
+            )
+            return 2
     try:
         tables = [read_table(t, args.x) for t in args.tables]
     except (OSError, ValueError, KeyError) as e:
@@ -253,8 +309,10 @@ def main(argv: list[str] | None = None) -> int:
         bar_range=tuple(args.bar_range),
         title=args.title,
         log_x=log_x,
+        references=references,
     )
-    print(summary_table(tables, labels, tuple(args.bar_range)))
+    x_name = "lr" if args.x in ("learning-rate", "learning_rate") else args.x
+    print(summary_table(tables, labels, tuple(args.bar_range), references, x_name))
     print(f"wrote {args.out}")
     return 0
 

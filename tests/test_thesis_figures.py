@@ -1,0 +1,331 @@
+"""Tests of agents/thesis_figures.py (every thesis Catch figure as one command) and of
+agents/plot_sweep.py's --reference option.
+
+Every line's flags are parsed by its own script (tyro), which then resolves its defaults and
+builds its network, so that a flag a script lacks, or a network it cannot build, fails here
+without training anything. The command's own behaviour (--list, --dry-run, errors, rounds,
+plots) is tested with sweep.py's dry run and a stand-in for the sweeps; no agent is trained.
+"""
+
+import csv
+import dataclasses
+import functools
+import importlib.util
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+TOOL = ROOT / "agents" / "thesis_figures.py"
+REQUIRED = ["fig6.3", "fig6.5", "fig6.6", "fig6.7", "fig6.8", "fig7.1", "fig7.2", "fig7.3",
+            "fig7.5", "fig7.6", "fig7.7", "figA.1", "figA.2", "figA.3", "figC.1"]  # fmt: skip
+# set by the sweep for each run, or by thesis_figures.py for every line
+NOT_LINE_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "evaluate",
+                  "eval-interval", "num-workers", "learning-rate"}  # fmt: skip
+
+
+def load(path: Path):
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = module  # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
+figures = load(TOOL)
+sweep = load(ROOT / "agents" / "sweep.py")
+plot_sweep = load(ROOT / "agents" / "plot_sweep.py")
+LINES = [(figure, line) for figure in figures.FIGURES for line in figure.lines]
+
+
+@functools.cache
+def agent(script: str):
+    return load(ROOT / "agents" / script)
+
+
+def flag_names(argv: list[str]) -> list[str]:
+    return [word[2:].split("=")[0] for word in argv if word.startswith("--")]
+
+
+def run_tool(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(TOOL), *args], capture_output=True, text=True, cwd=cwd, timeout=60
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# The table
+# ------------------------------------------------------------------------------------------------
+def test_every_thesis_catch_figure_is_there():
+    assert list(figures.FIGURE_IDS) == REQUIRED
+
+
+def test_the_table_is_consistent():
+    for figure in figures.FIGURES:
+        slugs = [line.slug for line in figure.lines]
+        labels = [line.label for line in figure.lines]
+        assert len(set(slugs)) == len(slugs) and len(set(labels)) == len(labels), figure.id
+        assert all(slug == Path(slug).name and " " not in slug for slug in slugs)
+        assert {label for label, _ in figure.numbers} <= set(labels), figure.id
+        assert figure.caption and figure.thesis, figure.id
+        for line in figure.lines:
+            where = f"{figure.id} {line.label}"
+            assert (ROOT / "agents" / line.script).is_file(), where
+            assert line.source, where
+            names = flag_names(line.argv)
+            assert not set(names) & NOT_LINE_FLAGS, where
+            assert len(set(names)) == len(names), f"{where}: a flag given twice"
+            for sample in line.samples:
+                assert sweep.parse_sample(sample).name not in NOT_LINE_FLAGS, where
+            assert not set(line.sample_names()) & set(names), where
+            # lambda_V as run: 1.0 for the presets up to 69 (A3C FF variants, LWS), else 0.5
+            expected_vf = "1.0" if line.script in ("a3c_ff.py", "a3c_lws.py") else "0.5"
+            assert sweep.flag_value(line.argv, "vf-coef") == expected_vf, where
+            if line.script == "a3c_glpq.py":  # every as-run GLPQ line: the code's mu
+                assert sweep.flag_value(line.argv, "mu-form") == "code", where
+        for plot in figure.plots:
+            assert plot.x == "learning-rate" or all(
+                plot.x in line.sample_names() for line in figure.lines
+            ), figure.id
+    # the one figure whose numbers the thesis gives
+    assert dict(figures.BY_ID["fig7.6"].numbers) == {
+        "A3C FF": 0.73,
+        "GLPQ cold": 0.77,
+        "GLPQ hot": 0.78,
+        "GLPQ searing": 0.81,
+    }
+
+
+@pytest.mark.parametrize(
+    ("figure", "line"), LINES, ids=[f"{figure.id}-{line.slug}" for figure, line in LINES]
+)
+def test_every_line_is_accepted_by_its_script(figure, line, capsys):
+    """The script parses the line's flags (and its sampled flags, with a value in range),
+    resolves its defaults and builds its network."""
+    import tyro
+
+    import catch_env  # noqa: F401  (registers Catch-v0)
+
+    module = agent(line.script)
+    fields = {field.name for field in dataclasses.fields(module.Args)}
+    sampled = []
+    for name in ["learning-rate", *line.sample_names()]:
+        assert name.replace("-", "_") in fields, f"{line.script} has no --{name}"
+    for sample in line.samples:
+        parsed = sweep.parse_sample(sample)
+        sampled += [f"--{parsed.name}", parsed.draw(0.5)]
+    argv = [*line.argv, *sampled, "--learning-rate", "1e-3", "--total-timesteps", "1000"]
+    argv += ["--eval-interval", "50", "--num-workers", "1"]
+    try:
+        args = tyro.cli(module.Args, args=argv)
+    except SystemExit:
+        pytest.fail(f"{line.script} rejects {shlex.join(line.argv)}:\n{capsys.readouterr().err}")
+    for word, value in zip(line.argv, line.argv[1:], strict=False):
+        if word == "--temperature":  # spot checks that the flags took
+            assert args.temperature == value
+        if word == "--vf-coef":
+            assert args.vf_coef == float(value)
+    args = module.resolve_defaults(args)
+    module.ActorCritic(3, args)  # network-level errors (UsageError) surface here
+
+
+# ------------------------------------------------------------------------------------------------
+# The command
+# ------------------------------------------------------------------------------------------------
+def test_figure_ids_are_read_loosely():
+    assert figures.figure_id("fig7.6") == "fig7.6"
+    assert figures.figure_id("7.6") == "fig7.6"
+    assert figures.figure_id("Fig6.3") == "fig6.3"
+    assert figures.figure_id("figa.1") == "figA.1"
+    assert figures.figure_id("C.1") == "figC.1"
+    assert figures.figure_id("fig9.9") is None
+    assert figures.figure_id("fig6.4") is None  # an Atari or non-sweep figure
+
+
+def test_list_names_every_figure_line_and_flag():
+    result = run_tool("--list")
+    assert result.returncode == 0, result.stderr
+    for figure in figures.FIGURES:
+        assert f"{figure.id}  " in result.stdout
+        for line in figure.lines:
+            assert f"{line.label} [{line.slug}]: {line.script} {line.flags}" in result.stdout
+            if line.approximation:
+                assert line.approximation in result.stdout
+    assert "nearest to what ran" in result.stdout
+    only = run_tool("--list", "A.2")
+    assert "figA.2" in only.stdout and "fig7.6" not in only.stdout
+
+
+def test_dry_run_prints_the_sweeps_and_creates_nothing(tmp_path):
+    out = tmp_path / "out"
+    result = run_tool("--dry-run", "fig7.6", "--runs", "2", "--steps", "1000", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert not out.exists()
+    commands = [shlex.split(row) for row in result.stdout.splitlines() if row.startswith("python")]
+    figure = figures.BY_ID["fig7.6"]
+    assert len(commands) == len(figure.lines) + len(figure.plots)
+    for command, line in zip(commands, figure.lines, strict=False):
+        assert command[1:3] == ["agents/sweep.py", f"agents/{line.script}"]
+        split = command.index("--")
+        own, fixed = command[3:split], command[split + 1 :]
+        assert own[own.index("--out") + 1] == str(out / "fig7.6" / line.slug)
+        assert own[own.index("--runs") + 1] == "2"
+        assert own[own.index("--total-timesteps") + 1] == "1000"
+        assert own[own.index("--sample") + 1] == "learning-rate=loguniform:1e-05:0.01"
+        assert fixed == [*line.argv, "--eval-interval", "50"]
+        # and sweep.py accepts the command (its own dry run creates nothing either)
+        assert sweep.main([command[2], "--dry-run", *command[3:]]) == 0
+    assert not out.exists()
+    plot = commands[-1]
+    assert plot[1] == "agents/plot_sweep.py"
+    assert plot[plot.index("--out") + 1] == str(out / "fig7.6" / "fig7.6.png")
+    assert "A3C FF=0.73" in plot and "GLPQ searing=0.81" in plot
+
+
+def test_samples_come_after_the_learning_rate(tmp_path):
+    """Run i of every line draws the first reproduction's learning rate and seed for run i,
+    joint samples (A.1's c_g) included: the learning rate is sampled first."""
+    reproduction = ROOT / "results" / "sweep_catch" / "a3c_ff" / "results.csv"
+    with open(reproduction, newline="") as f:
+        first = {row["run_id"]: (row["learning-rate"], row["seed"]) for row in csv.DictReader(f)}
+    result = run_tool("--dry-run", "figA.1", "--runs", "8", "--steps", "250000", "--out", "x")
+    command = shlex.split(next(r for r in result.stdout.splitlines() if "sweep.py" in r))
+    split = command.index("--")
+    samples = [command[i + 1] for i in range(3, split) if command[i] == "--sample"]
+    assert samples == ["learning-rate=loguniform:1e-05:0.01", "grad-clip=loguniform:0.5:40"]
+    config = {"samples": samples, "fixed_flags": command[split + 1 :], "seed": 1}
+    runs = sweep.plan_runs({**config, "total_timesteps": 250000}, 8)
+    assert {run.run_id: (run.sampled["learning-rate"], str(run.seed)) for run in runs} == first
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["fig9.9", "--runs", "2", "--steps", "100"], "unknown figure 'fig9.9'; valid: fig6.3"),
+        (["fig7.6", "--runs", "2", "--steps", "100", "--bogus"], "unrecognized arguments"),
+        (["fig7.6", "--runs", "0", "--steps", "100"], "--runs"),
+        (["fig7.6", "--runs", "2", "--steps", "100", "--lr-range", "1e-2:1e-5"], "LOW < HIGH"),
+        (["fig7.6", "--runs", "2"], "--steps"),
+        (["--runs", "2", "--steps", "100"], "name a figure"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line_and_create_nothing(tmp_path, args, message):
+    out = tmp_path / "out"
+    result = run_tool(*args, "--out", str(out))
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr
+    assert result.stdout == "" and not out.exists()
+
+
+def fake_table(folder: Path, runs: int, samples: list[str]) -> None:
+    """What sweep.py would leave in a line's folder: a results.csv of `runs` ok runs."""
+    folder.mkdir(parents=True, exist_ok=True)
+    parsed = [sweep.parse_sample(s) for s in samples]
+    names = [s.name for s in parsed]
+    with open(folder / "results.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow([*sweep.FIXED_COLUMNS, *names, *sweep.TRAILING_COLUMNS])
+        for i in range(runs):
+            values = sweep.sample_values(parsed, 1, i)
+            score = 0.2 + 0.1 * (i % 5)
+            writer.writerow([f"run-{i:04d}", "ok", score, score / 2, 20, 1000, 1.0, 1 + 1000 * i,
+                             *values.values(), "", ""])  # fmt: skip
+
+
+def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch):
+    """With the sweeps stood in for: each line is swept in rounds of --round runs, then the
+    figure is drawn (the thesis's numbers beside its bars) and summarised in FIG.md."""
+    real_execute = figures.execute
+    calls = []
+
+    def execute(command, capture=False):
+        if Path(command[0]).name == "plot_sweep.py":
+            return real_execute(command, capture)
+        own = command[: command.index("--")]
+        runs = int(own[own.index("--runs") + 1])
+        calls.append((Path(own[own.index("--out") + 1]).name, runs))
+        samples = [own[i + 1] for i, word in enumerate(own) if word == "--sample"]
+        fake_table(Path(own[own.index("--out") + 1]), runs, samples)
+        return 0, ""
+
+    monkeypatch.setattr(figures, "execute", execute)
+    out = tmp_path / "out"
+    argv = ["fig7.6", "--runs", "3", "--steps", "1000", "--round", "2", "--out", str(out)]
+    assert figures.main(argv) == 0
+    slugs = [line.slug for line in figures.BY_ID["fig7.6"].lines]
+    assert calls == [(slug, 2) for slug in slugs] + [(slug, 3) for slug in slugs]
+    png = out / "fig7.6" / "fig7.6.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = (out / "fig7.6" / "fig7.6.md").read_text()
+    assert "| GLPQ searing | 3/3 |" in summary and "| 0.81 |" in summary
+    assert "A3C FF 0.73" in summary  # the thesis's statement
+    assert "--round 2" in summary  # the command that made it
+
+
+def test_an_interrupted_sweep_stops_the_figure(tmp_path, monkeypatch):
+    calls = []
+
+    def execute(command, capture=False):
+        calls.append(command)
+        return 130, ""
+
+    monkeypatch.setattr(figures, "execute", execute)
+    out = tmp_path / "out"
+    assert figures.main(["fig6.7", "--runs", "2", "--steps", "100", "--out", str(out)]) == 130
+    assert len(calls) == 1  # no other sweep, no plot
+
+
+# ------------------------------------------------------------------------------------------------
+# plot_sweep.py --reference
+# ------------------------------------------------------------------------------------------------
+def test_plot_sweep_table_gets_a_reference_column():
+    import numpy as np
+
+    table = {
+        "values": np.array([1e-4, 1e-3]),
+        "score": np.array([0.5, 0.7]),
+        "score_all": np.array([0.4, 0.6]),
+        "runs": 2,
+        "ok": 2,
+    }
+    plain = plot_sweep.summary_table([table, table], ["A", "B"], (1e-5, 1e-2))
+    assert "reference" not in plain  # unchanged without references
+    text = plot_sweep.summary_table([table, table], ["A", "B"], (1e-5, 1e-2), {"A": 0.73})
+    rows = text.splitlines()
+    assert rows[0].endswith("| reference |") and rows[1] == "|---|---|---|---|---|"
+    assert rows[2].startswith("| A | 2/2 | 0.600") and rows[2].endswith("| 0.73 |")
+    assert rows[3].endswith("|  |")
+
+
+@pytest.mark.parametrize("reference", ["C=0.5", "A", "A=high"])
+def test_plot_sweep_rejects_a_bad_reference(tmp_path, reference, capsys):
+    fake_table(tmp_path / "a", 2, ["learning-rate=loguniform:1e-5:1e-2"])
+    table = str(tmp_path / "a" / "results.csv")
+    argv = [table, table, "--labels", "A", "B", "--reference", reference]
+    assert plot_sweep.main([*argv, "--out", str(tmp_path / "x.png")]) == 2
+    assert "--reference" in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_a_figure_with_a_joint_sample_is_drawn_against_each(tmp_path, monkeypatch):
+    """Figure A.1 samples c_g with the learning rate: one plot against each."""
+    real_execute = figures.execute
+
+    def execute(command, capture=False):
+        if Path(command[0]).name == "plot_sweep.py":
+            return real_execute(command, capture)
+        own = command[: command.index("--")]
+        samples = [own[i + 1] for i, word in enumerate(own) if word == "--sample"]
+        fake_table(Path(own[own.index("--out") + 1]), 4, samples)
+        return 0, ""
+
+    monkeypatch.setattr(figures, "execute", execute)
+    out = tmp_path / "out"
+    assert figures.main(["A.1", "--runs", "4", "--steps", "1000", "--out", str(out)]) == 0
+    for name in ("figA.1.png", "figA.1-grad-clip.png"):
+        assert (out / "figA.1" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = (out / "figA.1" / "figA.1.md").read_text()
+    assert "grad-clip in [0.5, 40]" in summary and "lr in [1e-05, 0.01]" in summary
