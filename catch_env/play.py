@@ -4,7 +4,9 @@
     catch-play --env BreakoutNoFrameskip-v4         # arrows/WASD, space is FIRE
     catch-play --list-envs                          # the ids --env accepts
 
-Esc or closing the window quits and prints a summary. The game advances one step per
+Esc, closing the window, Ctrl-C or SIGTERM quits and prints a summary saying which (e.g.
+"quit: stopped by SIGTERM"); the exit status is 0 however the session ended, 2 for bad
+flags. The game advances one step per
 frame at `--fps`; the default is the game's real speed (10 steps/s for Catch, 60 frames/s
 for Atari). Atari games are played raw (`gym.make(id, render_mode="rgb_array")`), without
 the learner's preprocessing.
@@ -13,10 +15,13 @@ the learner's preprocessing.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import itertools
 import os
-from collections.abc import Callable, Sequence
+import signal
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -161,7 +166,8 @@ class PlayStats:
     env_id: str
     scores: list[float] = field(default_factory=list)  # one per finished episode
     steps: int = 0
-    quit_reason: str = ""  # "escape", "window closed", "max_episodes", "max_steps", ...
+    # "escape", "window closed", "stopped by SIGINT", "stopped by SIGTERM", "max_episodes", ...
+    quit_reason: str = ""
 
     @property
     def episodes(self) -> int:
@@ -179,6 +185,36 @@ class PlayStats:
         )
 
 
+@contextlib.contextmanager
+def record_stop_signals() -> Iterator[list[str]]:
+    """Within the block, SIGINT and SIGTERM append their name ("SIGTERM") to the list yielded.
+
+    They neither kill the process nor raise, so play() can close its window and say what
+    stopped it. Set before the window opens: SDL only installs its own handlers, which turn
+    both signals into a window-close event, over the default ones. A signal the parent
+    ignores (nohup, a background job) stays ignored, and off the main thread, where Python
+    cannot set handlers, nothing changes. The previous handlers come back on exit.
+    """
+    received: list[str] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+
+    def record(signum: int, _frame: object) -> None:
+        received.append(signal.Signals(signum).name)
+
+    previous: dict[signal.Signals, Any] = {}
+    try:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(signum) is not signal.SIG_IGN:
+                previous[signum] = signal.signal(signum, record)
+        yield received
+    finally:
+        for signum, handler in previous.items():
+            # None: the old handler was not set from Python (no way to put it back).
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+
+
 def play(
     env_id: str = "Catch-v0",
     *,
@@ -189,7 +225,7 @@ def play(
     max_steps: int | None = None,
     on_step: OnStep | None = None,
 ) -> PlayStats:
-    """Play `env_id` from the keyboard in a pygame window until Esc, close, or a limit.
+    """Play `env_id` from the keyboard in a pygame window until Esc, close, a signal, a limit.
 
     One env step per frame at `fps` steps per second (default: the game's real speed);
     the window is the frame scaled by `zoom` (default: about 540 pixels tall). `seed`
@@ -199,6 +235,8 @@ def play(
 
     Keys are tracked from KEYDOWN/KEYUP events, not `pygame.key.get_pressed()`, so
     posted events count; a key tapped between two frames still acts for one step.
+    SIGINT (Ctrl-C) and SIGTERM end the session after the current step, with quit reason
+    "stopped by SIGINT"/"stopped by SIGTERM" (see `record_stop_signals`).
     """
     if fps is not None and not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
@@ -207,68 +245,72 @@ def play(
     for name, limit in [("max_episodes", max_episodes), ("max_steps", max_steps)]:
         if limit is not None and limit < 1:
             raise ValueError(f"{name} must be positive, got {limit}")
-    env = make_play_env(env_id)
-    fps = fps if fps is not None else default_fps(env)
-    key_map = build_key_map(env.unwrapped.get_action_meanings())
-    stats = PlayStats(env_id)
-    score, episode_over = 0.0, False
+    # Before the env and window exist, so a signal at any point ends the session cleanly.
+    with record_stop_signals() as stop_signals:
+        env = make_play_env(env_id)
+        fps = fps if fps is not None else default_fps(env)
+        key_map = build_key_map(env.unwrapped.get_action_meanings())
+        stats = PlayStats(env_id)
+        score, episode_over = 0.0, False
 
-    def status_text() -> str:
-        # The episode being played, or the one just finished while its last frame shows.
-        episode = stats.episodes + (0 if episode_over else 1)
-        return f"episode {episode}   score {score:g}   total {sum(stats.scores):g}"
+        def status_text() -> str:
+            # The episode being played, or the one just finished while its last frame shows.
+            episode = stats.episodes + (0 if episode_over else 1)
+            return f"episode {episode}   score {score:g}   total {sum(stats.scores):g}"
 
-    window = None
-    try:
-        env.reset(seed=seed)
-        frame = env.render()
-        zoom = zoom or max(1, round(TARGET_WINDOW_HEIGHT / frame.shape[0]))
-        window = Window(f"{env_id} (Esc quits)", frame.shape[:2], zoom=zoom)
-        pygame = window.pygame
-        key_buttons = _keyboard_buttons(pygame)
-        held_keys: set[int] = set()
-        window.show(frame, fps=fps, text=status_text())
-        while True:
-            tapped_keys: set[int] = set()
-            for event in pygame.event.get():
-                if event.type == pygame.QUIT:
-                    stats.quit_reason = "window closed"
-                elif event.type == pygame.KEYDOWN:
-                    if event.key == pygame.K_ESCAPE:
-                        stats.quit_reason = "escape"
-                    held_keys.add(event.key)
-                    tapped_keys.add(event.key)
-                elif event.type == pygame.KEYUP:
-                    held_keys.discard(event.key)
-            if stats.quit_reason:
-                break
-            buttons = {key_buttons[key] for key in held_keys | tapped_keys if key in key_buttons}
-            action = key_map[frozenset(buttons)]
-            _, reward, terminated, truncated, _ = env.step(action)
-            stats.steps += 1
-            score += float(reward)
-            if on_step is not None:
-                on_step(env, action, float(reward))
-            episode_over = terminated or truncated
-            if episode_over:
-                stats.scores.append(score)
-            window.show(env.render(), fps=fps, text=status_text())
-            if max_episodes is not None and stats.episodes >= max_episodes:
-                stats.quit_reason = "max_episodes"
-                break
-            if max_steps is not None and stats.steps >= max_steps:
-                stats.quit_reason = "max_steps"
-                break
-            if episode_over:
-                env.reset()
-                score, episode_over = 0.0, False
+        window = None
+        try:
+            env.reset(seed=seed)
+            frame = env.render()
+            zoom = zoom or max(1, round(TARGET_WINDOW_HEIGHT / frame.shape[0]))
+            window = Window(f"{env_id} (Esc quits)", frame.shape[:2], zoom=zoom)
+            pygame = window.pygame
+            key_buttons = _keyboard_buttons(pygame)
+            held_keys: set[int] = set()
+            window.show(frame, fps=fps, text=status_text())
+            while True:
+                tapped_keys: set[int] = set()
+                for event in pygame.event.get():
+                    if event.type == pygame.QUIT:
+                        stats.quit_reason = "window closed"
+                    elif event.type == pygame.KEYDOWN:
+                        if event.key == pygame.K_ESCAPE:
+                            stats.quit_reason = "escape"
+                        held_keys.add(event.key)
+                        tapped_keys.add(event.key)
+                    elif event.type == pygame.KEYUP:
+                        held_keys.discard(event.key)
+                if stop_signals:
+                    stats.quit_reason = f"stopped by {stop_signals[0]}"
+                if stats.quit_reason:
+                    break
+                buttons = {
+                    key_buttons[key] for key in held_keys | tapped_keys if key in key_buttons
+                }
+                action = key_map[frozenset(buttons)]
+                _, reward, terminated, truncated, _ = env.step(action)
+                stats.steps += 1
+                score += float(reward)
+                if on_step is not None:
+                    on_step(env, action, float(reward))
+                episode_over = terminated or truncated
+                if episode_over:
+                    stats.scores.append(score)
                 window.show(env.render(), fps=fps, text=status_text())
-    except KeyboardInterrupt:
-        stats.quit_reason = "interrupted"
-    finally:
-        if window is not None:
-            window.close()
-        env.close()
+                if max_episodes is not None and stats.episodes >= max_episodes:
+                    stats.quit_reason = "max_episodes"
+                    break
+                if max_steps is not None and stats.steps >= max_steps:
+                    stats.quit_reason = "max_steps"
+                    break
+                if episode_over:
+                    env.reset()
+                    score, episode_over = 0.0, False
+                    window.show(env.render(), fps=fps, text=status_text())
+        finally:
+            if window is not None:
+                window.close()
+            env.close()
     return stats
 
 
@@ -311,7 +353,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """The `catch-play` command: parse the flags, play, print a summary line."""
+    """The `catch-play` command: parse the flags, play, print a summary line.
+
+    Exits 0 however the session ended (Esc, window closed, Ctrl-C, SIGTERM: the summary says
+    which), as Ctrl-C always did: the summary is the result, not an error. Bad flags exit 2.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.list_envs:
@@ -322,8 +368,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     try:
         check_env_id(args.env)
+        # Flushed: a parent reading the pipe (tests, launchers) sees the game start.
         print(
-            f"{args.env}: arrow keys or WASD move, space is FIRE, Esc or closing the window quits."
+            f"{args.env}: arrow keys or WASD move, space is FIRE, Esc or closing the window quits.",
+            flush=True,
         )
         stats = play(
             args.env, fps=args.fps, zoom=args.zoom, seed=args.seed, max_episodes=args.episodes

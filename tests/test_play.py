@@ -11,8 +11,11 @@ os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
 import functools  # noqa: E402
 import re  # noqa: E402
+import select  # noqa: E402
+import signal  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
+import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import gymnasium as gym  # noqa: E402
@@ -165,6 +168,57 @@ def test_closing_the_window_quits() -> None:
     stats = play(fps=FAST, seed=0, max_steps=50)
     assert stats.quit_reason == "window closed"
     assert stats.steps == 0
+
+
+def test_sigterm_mid_game_stops_after_that_step() -> None:
+    def refuse(signum: int, frame: object) -> None:
+        # Stands in for the default action (killing pytest) should play() not catch it.
+        raise AssertionError("play() let SIGTERM through")
+
+    def sigterm_at_step_3(env: gym.Env, action: int, reward: float) -> None:
+        if env.unwrapped.ball_row == 4 + 3:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    previous = signal.signal(signal.SIGTERM, refuse)
+    try:
+        pygame.display.init()
+        pygame.event.clear()
+        stats = play(fps=FAST, seed=0, max_steps=50, on_step=sigterm_at_step_3)
+        assert signal.getsignal(signal.SIGTERM) is refuse  # put back after play()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert stats.quit_reason == "stopped by SIGTERM"
+    assert stats.steps == 3
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_catch_play_stopped_by_a_signal_says_so_and_exits_0(signum: signal.Signals) -> None:
+    """The command, headless in a subprocess: a signal ends it with its summary, as Ctrl-C
+    always did, and SIGTERM is no longer reported as "window closed" (SDL's reading)."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "catch_env.play", "--seed", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # A shell without job control starts background jobs with SIGINT ignored, and
+        # catch-play rightly keeps it ignored: give the child the default, as a terminal does.
+        preexec_fn=functools.partial(signal.signal, signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        ready, _, _ = select.select([process.stdout], [], [], 60)
+        assert ready, "catch-play printed nothing in 60 s"
+        assert "Esc or closing the window quits" in process.stdout.readline()
+        # The line comes just before play() takes over the signals; let it reach the loop.
+        time.sleep(1)
+        process.send_signal(signum)
+        out, err = process.communicate(timeout=30)
+    finally:
+        process.kill()
+        process.wait()
+    assert process.returncode == 0, err
+    assert f"(quit: stopped by {signum.name})" in out
+    assert "Traceback" not in err
 
 
 def test_atari_game_plays_with_its_own_key_map() -> None:
