@@ -2,31 +2,30 @@
 
     python benchmarks/a3c_step_profile.py [--seconds 20]
 
-One process and one torch thread run the loop of agents/a3c_ff.py's `worker` (sync, act up to
-t_max steps, one batched forward and backward, clip, shared RMSprop step) with a timer around
-each phase, built from the script's own functions and network. It is a copy of the loop with
-timers, not the loop itself: keep the two in step when the worker changes. The phases' shares are
-what matters; absolute times depend on the machine and its load.
+One process and one torch thread run agents/a3c_ff.py's own `worker` loop (sync, act up to t_max
+steps, one batched forward and backward, clip, shared RMSprop step) with a PhaseTimer from
+agents/a3c_runtime.py, which the loop calls between its phases (training runs pass none, at no
+cost per step). "sync" includes the loop's bookkeeping. The phases' shares are what matters;
+absolute times depend on the machine and its load.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
-import random
 import sys
-import time
+import threading
 from pathlib import Path
 
-import numpy as np
 import torch
 
-SCRIPT = Path(__file__).resolve().parents[1] / "agents" / "a3c_ff.py"
-PHASES = ("sync", "act forward", "env step", "learn forward", "backward", "clip", "optimizer")
+AGENTS = Path(__file__).resolve().parents[1] / "agents"
+SCRIPT = AGENTS / "a3c_ff.py"
 NETWORK_PHASES = ("act forward", "learn forward", "backward")  # the network's own kernels
 
 
 def load_a3c():
+    sys.path.insert(0, str(AGENTS))  # the script imports its sibling a3c_runtime
     spec = importlib.util.spec_from_file_location("a3c_ff", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     sys.modules["a3c_ff"] = module  # dataclasses look their module up by name
@@ -36,67 +35,18 @@ def load_a3c():
 
 def profile(a3c, seconds: float) -> tuple[int, dict[str, float]]:
     """Run the worker loop for `seconds`; returns (env steps, seconds spent in each phase)."""
-    args = a3c.resolve_defaults(a3c.Args(num_workers=1))
-    env = a3c.make_env(args.env)
-    num_actions = env.action_space.n
-    model = a3c.ActorCritic(num_actions, args).to(memory_format=torch.channels_last)
-    global_model = a3c.ActorCritic(num_actions, args).to(memory_format=torch.channels_last)
-    params, global_params = list(model.parameters()), list(global_model.parameters())
-    optimizer = a3c.make_optimizer(global_params, args)
-    obs_buf = torch.zeros((args.t_max + 1, *env.observation_space.shape), dtype=torch.uint8)
-    obs_buf = obs_buf.contiguous(memory_format=torch.channels_last)
-    actions = np.zeros(args.t_max, dtype=np.int64)
-    rewards = np.zeros(args.t_max, dtype=np.float32)
-    rng = random.Random(args.seed)
-    obs, _ = env.reset(seed=args.seed)
-    obs_buf[0].copy_(torch.from_numpy(obs))
-    spent = dict.fromkeys(PHASES, 0.0)
-    steps, clock = 0, time.perf_counter
-    end = clock() + seconds
-    while clock() < end:
-        t0 = clock()
-        with torch.no_grad():
-            torch._foreach_copy_(params, global_params)
-        spent["sync"] += clock() - t0
-        terminated = truncated = False
-        with torch.inference_mode():
-            for t in range(args.t_max):
-                t1 = clock()
-                log_probs, _ = model(obs_buf[t : t + 1])
-                action = a3c.sample_action(log_probs[0].exp().tolist(), rng.random())
-                t2 = clock()
-                obs, reward, terminated, truncated, _ = env.step(action)
-                actions[t], rewards[t] = action, reward
-                obs_buf[t + 1].copy_(torch.from_numpy(obs))
-                spent["act forward"] += t2 - t1
-                spent["env step"] += clock() - t2
-                if terminated or truncated:
-                    break
-        n = t + 1
-        t3 = clock()
-        log_probs, values = model(obs_buf[: n if terminated else n + 1])
-        bootstrap = 0.0 if terminated else float(values[n])
-        returns = torch.from_numpy(a3c.n_step_returns(rewards[:n], bootstrap, args.gamma))
-        loss = a3c.a3c_loss(log_probs[:n], torch.from_numpy(actions[:n]), values[:n], returns,
-                            args.ent_coef, args.vf_coef)[0]  # fmt: skip
-        t4 = clock()
-        grads = torch.autograd.grad(loss, params)
-        t5 = clock()
-        a3c.clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
-        t6 = clock()
-        optimizer.step(grads, a3c.annealed_lr(args, steps))
-        t7 = clock()
-        spent["learn forward"] += t4 - t3
-        spent["backward"] += t5 - t4
-        spent["clip"] += t6 - t5
-        spent["optimizer"] += t7 - t6
-        steps += n
-        if terminated or truncated:
-            obs, _ = env.reset()
-            obs_buf[0].copy_(torch.from_numpy(obs))
-        else:
-            obs_buf[0].copy_(obs_buf[n])
-    return steps, spent
+    import a3c_runtime as runtime
+    import torch.multiprocessing as mp
+
+    args = runtime.resolve_defaults(a3c.Args(num_workers=1))
+    args.total_timesteps = 10**12  # the clock ends the loop
+    shared = runtime.Shared(a3c.AGENT.build_network(3, args), args, mp.get_context("fork"))
+    timer = runtime.PhaseTimer()
+    stop = threading.Timer(seconds, shared.stop.set)
+    stop.start()
+    a3c.worker(0, shared, args, timer)
+    stop.cancel()
+    return shared.global_step(), timer.spent
 
 
 def main() -> None:

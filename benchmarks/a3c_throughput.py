@@ -37,7 +37,10 @@ from torch.utils.flop_counter import FlopCounterMode
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
-FF_SCRIPT = Path(__file__).resolve().parents[1] / "agents" / "a3c_ff.py"
+AGENTS = Path(__file__).resolve().parents[1] / "agents"
+FF_SCRIPT = AGENTS / "a3c_ff.py"
+sys.path.insert(0, str(AGENTS))  # the scripts import their sibling a3c_runtime
+import a3c_runtime  # noqa: E402
 
 
 def load_script(path: Path):
@@ -49,7 +52,7 @@ def load_script(path: Path):
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
-    for attr in ("Args", "ActorCritic", "train", "resolve_defaults"):
+    for attr in ("Args", "ActorCritic", "AGENT", "resolve_defaults"):
         if not hasattr(module, attr):
             raise SystemExit(f"{path} is not an A3C agent script: it has no {attr}")
     return module
@@ -175,7 +178,7 @@ def run_script(a3c, num_workers: int, seconds: float) -> tuple[float, float]:
                         log_interval=max(5.0, seconds / 4))  # fmt: skip
         args.total_timesteps = 10**9  # the time limit ends the run
         cpu_before = children_cpu_seconds()
-        summary = a3c.train(a3c.resolve_defaults(args))
+        summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
     per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
     return summary["sps"], per_cpu
 

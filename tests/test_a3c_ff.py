@@ -1,6 +1,7 @@
-"""End-to-end tests of agents/a3c_ff.py, run as a subprocess on tiny budgets with 2 workers."""
+"""End-to-end tests of agents/a3c_ff.py, run as a subprocess on tiny budgets with 2 workers: the
+run machinery of agents/a3c_runtime.py as a user meets it (the in-process machinery tests, for
+every script, are tests/test_a3c_runtime.py)."""
 
-import csv
 import os
 import re
 import signal
@@ -11,25 +12,14 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import AGENTS, ROOT, TINY, read_evaluations, run_script
 
-ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "agents" / "a3c_ff.py"
-TINY = ["--num-workers", "2", "--eval-episodes", "5", "--log-interval", "1"]
+pytestmark = pytest.mark.slow
+SCRIPT = AGENTS / "a3c_ff.py"
 
 
 def run(*flags: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(SCRIPT), *flags],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=ROOT,
-    )
-
-
-def read_evaluations(run_dir: Path) -> list[dict]:
-    with open(run_dir / "evaluations.csv") as f:
-        return list(csv.DictReader(f))
+    return run_script("a3c_ff", *flags, timeout=timeout)
 
 
 def start(*flags: str) -> tuple[subprocess.Popen, dict[str, int]]:
@@ -91,6 +81,10 @@ def test_short_run_writes_evaluations_events_and_checkpoint(short_run):
     assert checkpoint["global_step"] == steps[-1]
     summary = result.stdout.strip().splitlines()[-1]
     assert summary.startswith("done: final eval") and "SPS" in summary, result.stdout
+    # the wall time counts the final evaluation, and the time spent evaluating is reported
+    minutes, seconds = map(int, re.search(r"wall time (\d+)m(\d+)s \(evaluations \d+m\d+s\)",
+                                          summary).groups())  # fmt: skip
+    assert 60 * minutes + seconds >= int(float(rows[-1]["wall_time_s"])), summary
     assert re.search(r"step [\d,]+/3,000 .*\| SPS [\d,]+ \| return .* \| ETA", result.stdout)
 
 
@@ -112,10 +106,18 @@ def test_resume_continues_global_step(short_run, tmp_path):
     before = old["global_step"]
     copy = tmp_path / "checkpoint.pt"
     copy.write_bytes((run_dir / "checkpoint.pt").read_bytes())
+    old_rows = read_evaluations(run_dir)
+    (tmp_path / "evaluations.csv").write_bytes((run_dir / "evaluations.csv").read_bytes())
     result = run(*TINY, "--resume", str(copy), "--total-timesteps", "5000",
                  "--eval-interval", "1000")  # fmt: skip
     assert result.returncode == 0, result.stderr
-    rows = read_evaluations(tmp_path)  # the checkpoint's folder is the default run folder
+    # the continued run is named, and its progress shows its last evaluation until the next
+    first, _, progress = result.stdout.splitlines()[:3]
+    assert first.startswith(f"resuming run {tmp_path.name} at step {before:,}"), first
+    last = old_rows[-1]
+    assert f"eval {float(last['mean_return']):.3f} @ {int(last['global_step']):,}" in progress
+    # the checkpoint's folder is the default run folder: its evaluations.csv goes on
+    rows = read_evaluations(tmp_path)[len(old_rows) :]
     steps = [int(r["global_step"]) for r in rows]
     assert steps[0] > before, "a resumed run must not start again at step 0"
     assert steps[-1] >= 5000

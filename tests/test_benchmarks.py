@@ -25,6 +25,7 @@ def test_env_throughput_reports_every_configuration():
         assert re.search(rf"N={n} grid copy=False +[\d,]+ +[\d,]+", result.stdout)
 
 
+@pytest.mark.slow
 def test_a3c_throughput_compares_a_variant_with_a3c_ff():
     result = run(
         "benchmarks/a3c_throughput.py", "agents/a3c_lstm.py", "--seconds", "3", "--no-baseline"

@@ -2,18 +2,16 @@
 distances, the LPQ and GLPQ heads and the temperature against hand-computed values, then both
 scripts end to end on tiny budgets."""
 
-import csv
-import importlib.util
 import itertools
 import math
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from conftest import evaluation_steps, load_script, run_script
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -22,11 +20,7 @@ TINY = ["--num-workers", "2", "--eval-episodes", "2", "--log-interval", "1"]
 
 
 def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "agents" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up by name
-    spec.loader.exec_module(module)
-    return module
+    return load_script(name)
 
 
 @pytest.fixture(scope="module")
@@ -364,17 +358,10 @@ def test_bad_head_flags_are_usage_errors(lpq, glpq, name, flags):
 # End to end, tiny budgets (the flags of tests/test_a3c_ff.py)
 # ---------------------------------------------------------------------------------------------
 def run(name: str, *flags: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(ROOT / "agents" / f"{name}.py"), *flags],
-        capture_output=True, text=True, timeout=timeout, cwd=ROOT,
-    )  # fmt: skip
+    return run_script(name, *flags, timeout=timeout)
 
 
-def evaluation_steps(run_dir: Path) -> list[int]:
-    with open(run_dir / "evaluations.csv") as f:
-        return [int(row["global_step"]) for row in csv.DictReader(f)]
-
-
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "flags"),
     [("a3c_lpq", []), ("a3c_glpq", []), ("a3c_glpq", ["--temperature", "trainable"])],
@@ -399,6 +386,7 @@ def test_catch_end_to_end(tmp_path, name, flags):
     assert result.returncode == 2 and "--distance squared-euclidean" in result.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["a3c_lpq", "a3c_glpq"])
 def test_atari_breakout_runs(tmp_path, name):
     pytest.importorskip("ale_py")
@@ -551,6 +539,7 @@ def test_trainable_tau_as_run_and_the_loss_scope_flags(glpq):
             glpq.ActorCritic(3, glpq.Args(**{"temperature": "fixed", **flags}))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scope", ["policy", "policy-and-entropy"])
 def test_glpq_as_run_end_to_end(tmp_path, scope):
     as_run = ["--mu-form", "code", "--tau-loss-scope", scope, "--temperature", "trainable",

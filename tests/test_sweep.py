@@ -591,11 +591,13 @@ def check_a3c_sweep(out: Path, result: subprocess.CompletedProcess) -> None:
         assert "--num-workers 1" in row["flags"]
 
 
+@pytest.mark.slow
 def test_tiny_a3c_sweep_local(tmp_path):
     out = tmp_path / "out"
     check_a3c_sweep(out, run_sweep(str(A3C), "--out", str(out), *TINY_A3C, timeout=300))
 
 
+@pytest.mark.slow
 def test_tiny_a3c_sweep_ray(tmp_path):
     pytest.importorskip("ray")
     out = tmp_path / "out"

@@ -3,12 +3,9 @@ a3c_ss.py (spatial softmax, 6.2), a3c_ww.py (what and where, 6.2.1) and a3c_lstm
 Layer maths against hand-computed values, parameter counts against the thesis's figures, and
 end-to-end runs of each script on tiny budgets (Catch-v0 and BreakoutNoFrameskip-v4)."""
 
-import csv
-import importlib.util
 import math
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,17 +13,14 @@ import pytest
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+from conftest import evaluation_steps, load_script, run_script
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = ("a3c_lws", "a3c_ss", "a3c_ww", "a3c_lstm")
 
 
 def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "agents" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up by name
-    spec.loader.exec_module(module)
-    return module
+    return load_script(name)
 
 
 @pytest.fixture(scope="module")
@@ -668,9 +662,11 @@ class FixedLengthEnv:
         return obs, 0.0, done, False, {"episode": {"r": float(self.length), "l": self.length}}
 
 
-def test_lstm_evaluation_carries_a_state_per_episode(lstm):
+def test_lstm_evaluation_carries_a_state_per_episode():
+    import a3c_runtime
+
     model = CountingModel()
-    scores = lstm.play_episodes(model, [FixedLengthEnv(n) for n in (2, 5, 3)])
+    scores = a3c_runtime.play_episodes(model, [FixedLengthEnv(n) for n in (2, 5, 3)])
     np.testing.assert_array_equal(scores, [2, 5, 3])
     assert model.rows_seen == [3, 3, 2, 1, 1]  # the finished episodes' rows leave the batch
 
@@ -682,20 +678,10 @@ TINY = ["--num-workers", "2", "--eval-interval", "500", "--eval-episodes", "2"]
 
 
 def run(name: str, *flags: str, timeout: float = 180) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(ROOT / "agents" / f"{name}.py"), *flags],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=ROOT,
-    )
+    return run_script(name, *flags, timeout=timeout)
 
 
-def evaluation_steps(run_dir: Path) -> list[int]:
-    with open(run_dir / "evaluations.csv") as f:
-        return [int(row["global_step"]) for row in csv.DictReader(f)]
-
-
+@pytest.mark.slow
 @pytest.mark.parametrize("name", VARIANTS)
 def test_variant_runs_on_catch(tmp_path, name):
     result = run(name, *TINY, "--total-timesteps", "1000", "--run-dir", str(tmp_path))
@@ -704,12 +690,13 @@ def test_variant_runs_on_catch(tmp_path, name):
     assert steps[0] == 0 and steps[-1] >= 1000 and len(steps) >= 3
     assert result.stdout.strip().splitlines()[-1].startswith("done: final eval")
     if name not in ("a3c_lws", "a3c_lstm"):
-        return  # --evaluate is a3c_ff's code; LWS's buffers and LSTM's states are checked here
+        return  # --evaluate is the runtime's; LWS's buffers and LSTM's states are checked here
     result = run(name, "--evaluate", str(tmp_path / "checkpoint.pt"), "--eval-episodes", "3")
     assert result.returncode == 0, result.stderr
     assert len(re.findall(r"^episode \d: score [01]$", result.stdout, re.M)) == 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", VARIANTS)
 def test_variant_runs_on_breakout(tmp_path, name):
     pytest.importorskip("ale_py")
@@ -720,6 +707,7 @@ def test_variant_runs_on_breakout(tmp_path, name):
     assert steps[0] == 0 and steps[-1] >= 300
 
 
+@pytest.mark.slow
 def test_lws_fixed_group_wise_centroids_run_and_resume_only_with_their_seed(tmp_path):
     """Fixed centroids come from --seed: resuming with another seed would silently change them."""
     flags = ["--no-lws-trainable", "--lws-centroids", "group", "--total-timesteps", "500"]
@@ -747,6 +735,7 @@ TINIEST = ["--num-workers", "1", "--total-timesteps", "200", "--eval-interval", 
            "--eval-episodes", "1"]  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", AS_RUN)
 def test_as_run_flags_run_evaluate_and_resume_only_with_the_same_network(tmp_path, name):
     result = run(name, *TINIEST, *AS_RUN[name], "--run-dir", str(tmp_path), timeout=60)
@@ -765,6 +754,7 @@ def test_as_run_flags_run_evaluate_and_resume_only_with_the_same_network(tmp_pat
     assert f"was trained with {flag} {value}, not {default}" in result.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "flags", "message"),
     [
