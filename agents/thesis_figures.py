@@ -2,8 +2,8 @@
 
 The thesis's Catch figures (6.3, 6.5-6.8, 7.1-7.3, 7.5-7.7, A.1-A.3, C.1) are learning-rate
 sweeps. For each figure this tool runs every line with the flags that reproduce its configuration
-as run (read from the thesis's own code: shared/thesis-figures-as-run.md and the "As run" section
-of shared/thesis-notes.md), through agents/sweep.py, at a budget of your choosing, and draws the
+as run (read from the thesis's own code: docs/thesis-figures-as-run.md and the "As run" section
+of docs/thesis-notes.md), through agents/sweep.py, at a budget of your choosing, and draws the
 figure with agents/plot_sweep.py, next to the thesis's numbers where they are known.
 
     python agents/thesis_figures.py --list                  # every figure, its lines and flags
