@@ -119,7 +119,8 @@ class Args:
     tau_parametrization: Literal["log", "plain"] = "log"
     """a trainable tau as a parameter log tau (tau stays positive) or tau itself (as run)"""
     p_start: float | None = None
-    """p at step 0 of the cold/hot/searing schedule (default 0.9; searing 0.95)"""
+    """p at step 0 of the cold/hot/searing schedule (default 0.9; searing 0.95); also sets a
+    trainable tau's default start, the cold tau for this p"""
     p_end: float | None = None
     """p at T_max of the schedule (default 0.99; searing 0.999)"""
     tau_loss_correction: bool = True
@@ -243,7 +244,7 @@ def glpq_log_policy(
     if k < distances.shape[-1]:
         nearest = distances.topk(k, dim=-1, largest=False, sorted=False).indices
         scores = scores.gather(-1, nearest)
-    if mu_form == "text" and (tau.detach() if torch.is_tensor(tau) else tau) <= EXP_SAFE_TAU:
+    if mu_form == "text" and 0 < (tau.detach() if torch.is_tensor(tau) else tau) <= EXP_SAFE_TAU:
         # mu <= 1, so exp(tau (mu - 1)) lies in [exp(-2 tau), 1]: no overflow, no underflow to 0.
         # It shifts every action's sum by the same exp(-tau), which log_softmax cancels, and costs
         # a fraction of logsumexp's generic CPU kernel (the head's largest cost when acting).

@@ -40,7 +40,7 @@ import sys
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +61,10 @@ class UsageError(Exception):
     """A bad flag, or a missing, corrupt or incompatible checkpoint."""
 
 
+class RunFailed(RuntimeError):
+    """A worker or the evaluator died; the message holds its traceback."""
+
+
 class EvaluationInterrupted(Exception):
     """Ctrl-C or SIGTERM arrived while evaluation episodes were being played."""
 
@@ -75,6 +79,14 @@ class Agent:
     network: Callable[[int, Any], nn.Module]
     network_args: tuple[str, ...]
     worker: Callable[..., None]
+    # flags newer than some checkpoints, with the value those checkpoints' runs had where it is
+    # not the flag's default (e.g. SS's --conv-layout: final before it existed)
+    checkpoint_defaults: dict[str, Any] = field(default_factory=dict)
+
+    def trained_args(self, checkpoint: dict) -> dict[str, Any]:
+        """The flags a checkpoint was trained with; a flag it predates has its
+        checkpoint_defaults value, else (left out here) the flag's default."""
+        return {**self.checkpoint_defaults, **checkpoint["args"]}
 
     def build_network(self, num_actions: int, args: Any) -> nn.Module:
         # channels_last makes oneDNN's convolution backward about 2x faster on CPU
@@ -502,7 +514,12 @@ def load_checkpoint(path: str, agent: Agent) -> dict:
 
 def load_network(model: nn.Module, checkpoint: dict, path: str) -> None:
     """Load the checkpoint's weights; a mismatch is a one-line UsageError."""
-    result = model.load_state_dict(checkpoint["model"], strict=False)
+    try:
+        result = model.load_state_dict(checkpoint["model"], strict=False)
+    except RuntimeError as e:  # a tensor of another shape: name the first one
+        lines = [line.strip() for line in str(e).splitlines() if "size mismatch" in line]
+        detail = lines[0] if lines else str(e).strip().splitlines()[-1]
+        raise UsageError(f"checkpoint {path!r} does not fit this network: {detail}") from e
     problems = [f"{kind}: {', '.join(keys[:4])}" + (" ..." if len(keys) > 4 else "")
                 for kind, keys in (("missing", result.missing_keys),
                                    ("unexpected", result.unexpected_keys)) if keys]  # fmt: skip
@@ -515,9 +532,11 @@ def load_network(model: nn.Module, checkpoint: dict, path: str) -> None:
 
 def restore(shared: Shared, checkpoint: dict, args: Any, path: str, agent: Agent) -> None:
     for key in agent.network_args:
-        # a flag newer than the checkpoint counts as its default (a network that differs all the
-        # same fails to load below, with a one-line message)
-        trained = checkpoint["args"].get(key, agent.Args.__dataclass_fields__[key].default)
+        # a flag newer than the checkpoint: see Agent.trained_args (a network that differs all
+        # the same fails to load below, with a one-line message)
+        trained = agent.trained_args(checkpoint).get(
+            key, agent.Args.__dataclass_fields__[key].default
+        )
         if trained != getattr(args, key):
             raise UsageError(
                 f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
@@ -528,8 +547,8 @@ def restore(shared: Shared, checkpoint: dict, args: Any, path: str, agent: Agent
             f"checkpoint {path!r} holds {checkpoint['optimizer_name']} statistics; "
             f"pass --optimizer {checkpoint['optimizer_name']}"
         )
+    load_network(shared.model, checkpoint, path)
     try:
-        load_network(shared.model, checkpoint, path)
         shared.optimizer.load_state_dict(checkpoint["optimizer"])
     except (RuntimeError, KeyError) as e:
         first_line = str(e).strip().splitlines()[0]
@@ -643,7 +662,7 @@ class RunLog:
 
 def train(agent: Agent, args: Any) -> dict:
     """Run A3C; returns the summary. Raises UsageError for a bad checkpoint, flag or env, before
-    a run folder exists, and RuntimeError when a worker or the evaluator dies."""
+    a run folder exists, and RunFailed when a worker or the evaluator dies."""
     global _stop_requested
     torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
     checkpoint = load_checkpoint(args.resume, agent) if args.resume else None
@@ -758,6 +777,8 @@ def train(agent: Agent, args: Any) -> dict:
             if name == "evaluator" and finished:
                 while process.is_alive() and not stop_signal:  # a running evaluation completes
                     process.join(0.1)
+                if stop_signal:  # unless a signal came: it drops that evaluation
+                    process.terminate()
             process.join(max(0.1, deadline - time.time()))
             if process.is_alive():
                 process.kill()
@@ -788,7 +809,7 @@ def train(agent: Agent, args: Any) -> dict:
     _stop_requested = False
     log.close()
     if failures:
-        raise RuntimeError("\n".join(failures))
+        raise RunFailed("\n".join(failures))
 
     start_time, start_of_sps = steady_start or (log.start, start_step)
     sps = (global_step - start_of_sps) / max(end_time - start_time, 1e-9)
@@ -829,7 +850,7 @@ def evaluate(agent: Agent, args: Any) -> np.ndarray:
     """Play episodes with a checkpoint's network, print each score and the mean."""
     checkpoint = load_checkpoint(args.evaluate, agent)
     try:
-        trained = agent.Args(**checkpoint["args"])
+        trained = agent.Args(**agent.trained_args(checkpoint))
     except TypeError as e:
         raise UsageError(
             f"checkpoint {args.evaluate!r} has other flags than this script: {e}"
@@ -851,11 +872,16 @@ def evaluate(agent: Agent, args: Any) -> np.ndarray:
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
         model.set_progress(checkpoint["global_step"] / trained.total_timesteps)
     scores = []
-    for episode in range(episodes):
-        seed = args.seed + episode
-        scores.append(play_episodes(model, [env], [seed])[0])
-        print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
+    try:
+        for episode in range(episodes):
+            seed = args.seed + episode
+            scores.append(play_episodes(model, [env], [seed])[0])
+            print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
+    except KeyboardInterrupt:  # Ctrl-C: the episodes played so far still count
+        print(f"stopped by SIGINT after {len(scores)} episodes", flush=True)
     env.close()
+    if not scores:
+        return np.asarray(scores)
     print(
         f"{trained.env}, step {checkpoint['global_step']:,}: mean score {np.mean(scores):.3f} "
         f"+- {np.std(scores):.3f} over {len(scores)} episodes",
@@ -880,7 +906,7 @@ def run(agent: Agent) -> int:
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except RuntimeError as e:
+    except RunFailed as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
     return 0

@@ -375,6 +375,8 @@ AGENT = Agent(
     network=ActorCritic,
     network_args=NETWORK_ARGS,
     worker=worker,
+    # checkpoints from before --conv-layout existed hold the final code's network
+    checkpoint_defaults={"conv_layout": "final"},
 )
 
 

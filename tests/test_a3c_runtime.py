@@ -147,28 +147,68 @@ def test_worker_learns_in_process_without_warnings_or_autograd_history(name, one
         module.worker(0, shared, args)
     assert 60 <= shared.global_step() < 60 + args.t_max
     assert shared.stats[0, 3] >= 60 // 5  # updates
-    assert not all(torch.equal(p, q) for p, q in zip(before, shared.params, strict=True))
+    # every parameter learns, except those that provably get no gradient:
+    # - a3c_ss.py: the second convolution's bias (torso.2.bias) adds a constant to each map, which
+    #   the spatial softmax over the map's positions ignores;
+    # - a3c_ww.py: for the same reason, the biases of its "where" maps, the second convolution's
+    #   channels from what_maps on (convs.2.bias[what_maps:]); its "what" biases must learn.
+    # (Such a gradient is zero up to rounding, so these may change a little: they are not checked.)
+    model = shared.model
+    no_gradient = {"a3c_ss": {"torso.2.bias"}}.get(name, set())
+    after = dict(model.named_parameters())
+    for key, old in zip(after, before, strict=True):
+        new = after[key].detach()
+        if name == "a3c_ww" and key == "convs.2.bias":
+            what = slice(0, model.what_maps)
+            assert not torch.equal(old[what], new[what]), f"{key}[:{model.what_maps}] did not learn"
+        elif key not in no_gradient:
+            assert not torch.equal(old, new), f"{key} did not learn"
     # logging the losses must not chain each rollout's graph onto the stats (a memory leak)
     assert shared.stats.grad_fn is None and not shared.stats.requires_grad
 
 
-@pytest.mark.parametrize("name", SCRIPTS)
-def test_checkpoint_round_trip_and_errors(name, tmp_path):
-    module = load_script(name)
-    args = tiny_args(module)
+OPTIMIZER_STATISTICS = {"rmsprop": ("square_avg",), "adam": ("exp_avg", "exp_avg_sq")}
+
+
+def checkpoint_round_trip(module, name, folder: Path, optimizer: str):
+    """Save a Shared whose optimizer statistics are non-zero, restore it into a fresh Shared with
+    another initial network, and check that the network, statistics and step came back."""
+    args = tiny_args(module, optimizer=optimizer)
     shared = shared_for(module, args)
     shared.steps[0] = 1234
-    path = tmp_path / "checkpoint.pt"
+    for i, key in enumerate(OPTIMIZER_STATISTICS[optimizer]):
+        for j, statistic in enumerate(getattr(shared.optimizer, key)):
+            statistic.copy_(torch.rand_like(statistic) + i + j + 1)  # non-zero, all different
+    if optimizer == "adam":
+        shared.optimizer.step_count.fill_(37)
+    path = folder / optimizer / "checkpoint.pt"
+    path.parent.mkdir()
     runtime.save_checkpoint(path, shared, args, wall_time=12.0, script=f"{name}.py")
     checkpoint = runtime.load_checkpoint(str(path), module.AGENT)
     assert checkpoint["global_step"] == 1234 and checkpoint["wall_time"] == 12.0
-    assert checkpoint["script"] == f"{name}.py"
+    assert checkpoint["script"] == f"{name}.py" and checkpoint["optimizer_name"] == optimizer
     torch.manual_seed(123)  # another initial network
     fresh = shared_for(module, args)
     runtime.restore(fresh, checkpoint, args, str(path), module.AGENT)
     assert fresh.global_step() == 1234
     for p, q in zip(fresh.params, shared.params, strict=True):
         assert torch.equal(p, q)
+    for key in OPTIMIZER_STATISTICS[optimizer]:
+        restored, saved = getattr(fresh.optimizer, key), getattr(shared.optimizer, key)
+        assert len(restored) == len(saved) == len(fresh.params)
+        for r, s in zip(restored, saved, strict=True):
+            assert (s != 0).all() and torch.equal(r, s), key
+            assert r.is_shared()  # restored in place: the workers still share them
+    if optimizer == "adam":
+        assert fresh.optimizer.step_count.item() == 37 and fresh.optimizer.step_count.is_shared()
+    return args, checkpoint, fresh, path
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_checkpoint_round_trip_and_errors(name, tmp_path):
+    module = load_script(name)
+    checkpoint_round_trip(module, name, tmp_path, "adam")
+    args, checkpoint, fresh, path = checkpoint_round_trip(module, name, tmp_path, "rmsprop")
 
     agent = module.AGENT
     with pytest.raises(runtime.UsageError, match="does not exist"):
@@ -286,6 +326,34 @@ def test_an_old_checkpoint_of_the_same_script_still_loads(ff_checkpoints):
     checkpoint = runtime.load_checkpoint(str(old), module.AGENT)
     args = tiny_args(module)
     runtime.restore(shared_for(module, args), checkpoint, args, str(old), module.AGENT)
+
+
+def test_evaluating_an_old_checkpoint_of_another_network_is_a_usage_error(ff_checkpoints):
+    # no script name to refuse it by: the tensors of another shape give the one-line message
+    _, old = ff_checkpoints
+    module = load_script("a3c_ss")
+    with pytest.raises(runtime.UsageError, match="does not fit this network: size mismatch"):
+        runtime.evaluate(module.AGENT, module.Args(evaluate=str(old), eval_episodes=1))
+
+
+@pytest.mark.parametrize("name", ["a3c_ss", "a3c_ww"])
+def test_checkpoints_from_before_conv_layout_hold_the_final_network(name, tmp_path, capsys):
+    """Such checkpoints have no --conv-layout: the script's checkpoint_defaults say "final"."""
+    module = load_script(name)
+    args = tiny_args(module, conv_layout="final")
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="")
+    checkpoint = torch.load(path, weights_only=False)
+    del checkpoint["script"], checkpoint["args"]["conv_layout"]  # as written before the flag
+    torch.save(checkpoint, path)
+    loaded = runtime.load_checkpoint(str(path), module.AGENT)
+    runtime.restore(shared_for(module, args), loaded, args, str(path), module.AGENT)
+    with pytest.raises(runtime.UsageError, match="--conv-layout final, not ff"):
+        default = tiny_args(module)
+        runtime.restore(shared_for(module, default), loaded, default, str(path), module.AGENT)
+    evaluate = module.Args(evaluate=str(path), eval_episodes=1)
+    assert len(runtime.evaluate(module.AGENT, evaluate)) == 1
+    assert "over 1 episodes" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("name", SCRIPTS)

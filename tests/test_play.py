@@ -191,6 +191,23 @@ def test_sigterm_mid_game_stops_after_that_step() -> None:
     assert stats.steps == 3
 
 
+def wait_for_stop_handlers(pid: int, timeout: float = 60) -> None:
+    """Wait until process `pid` catches SIGTERM: record_stop_signals sets SIGINT's handler, then
+    SIGTERM's (Python catches SIGINT from its start, so only SIGTERM tells). Linux shows the
+    caught signals in /proc/<pid>/status; elsewhere, wait a second."""
+    status = Path(f"/proc/{pid}/status")
+    if not status.exists():
+        time.sleep(1)
+        return
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        caught = re.search(r"^SigCgt:\s*([0-9a-f]+)$", status.read_text(), re.MULTILINE)
+        if caught and int(caught[1], 16) >> (signal.SIGTERM - 1) & 1:
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"catch-play did not catch SIGTERM within {timeout} s")
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_catch_play_stopped_by_a_signal_says_so_and_exits_0(signum: signal.Signals) -> None:
@@ -209,8 +226,8 @@ def test_catch_play_stopped_by_a_signal_says_so_and_exits_0(signum: signal.Signa
         ready, _, _ = select.select([process.stdout], [], [], 60)
         assert ready, "catch-play printed nothing in 60 s"
         assert "Esc or closing the window quits" in process.stdout.readline()
-        # The line comes just before play() takes over the signals; let it reach the loop.
-        time.sleep(1)
+        # The controls line comes just before play() takes over the signals: wait for them.
+        wait_for_stop_handlers(process.pid)
         process.send_signal(signum)
         out, err = process.communicate(timeout=30)
     finally:

@@ -13,8 +13,9 @@ from conftest import AGENTS
 NETWORK = {"ActorCritic", "NETWORK_ARGS", "Args"}
 ALLOWED = {
     "a3c_lws": NETWORK,
-    "a3c_ss": NETWORK,
-    "a3c_ww": NETWORK,
+    # AGENT: the value --conv-layout had in checkpoints from before the flag
+    "a3c_ss": NETWORK | {"AGENT"},
+    "a3c_ww": NETWORK | {"AGENT"},
     "a3c_lstm": NETWORK | {"worker"},  # the recurrent state through the rollout
     "a3c_lpq": NETWORK,
     "a3c_glpq": NETWORK | {"worker"},  # the tau schedule's progress and the 1/tau loss

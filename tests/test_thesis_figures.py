@@ -9,41 +9,30 @@ plots) is tested with sweep.py's dry run and a stand-in for the sweeps; no agent
 
 import csv
 import dataclasses
-import functools
-import importlib.util
 import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from conftest import AGENTS, ROOT, load_script
 
-ROOT = Path(__file__).resolve().parents[1]
-TOOL = ROOT / "agents" / "thesis_figures.py"
+TOOL = AGENTS / "thesis_figures.py"
 REQUIRED = ["fig6.3", "fig6.5", "fig6.6", "fig6.7", "fig6.8", "fig7.1", "fig7.2", "fig7.3",
             "fig7.5", "fig7.6", "fig7.7", "figA.1", "figA.2", "figA.3", "figC.1"]  # fmt: skip
 # set by the sweep for each run, or by thesis_figures.py for every line
 NOT_LINE_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "evaluate",
                   "eval-interval", "num-workers", "learning-rate"}  # fmt: skip
 
-
-def load(path: Path):
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[path.stem] = module  # dataclasses look their module up by name
-    spec.loader.exec_module(module)
-    return module
-
-
-figures = load(TOOL)
-sweep = load(ROOT / "agents" / "sweep.py")
-plot_sweep = load(ROOT / "agents" / "plot_sweep.py")
+figures = load_script("thesis_figures")
+sweep = load_script("sweep")
+plot_sweep = load_script("plot_sweep")
 LINES = [(figure, line) for figure in figures.FIGURES for line in figure.lines]
 
 
-@functools.cache
 def agent(script: str):
-    return load(ROOT / "agents" / script)
+    """The agent script a line runs (agents/<script>), loaded once per test session."""
+    return load_script(Path(script).stem)
 
 
 def flag_names(argv: list[str]) -> list[str]:
@@ -73,7 +62,7 @@ def test_the_table_is_consistent():
         assert figure.caption and figure.thesis, figure.id
         for line in figure.lines:
             where = f"{figure.id} {line.label}"
-            assert (ROOT / "agents" / line.script).is_file(), where
+            assert (AGENTS / line.script).is_file(), where
             assert line.source, where
             names = flag_names(line.argv)
             assert not set(names) & NOT_LINE_FLAGS, where
