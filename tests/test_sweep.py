@@ -7,7 +7,6 @@ check the local and the Ray backend end to end.
 """
 
 import csv
-import importlib.util
 import math
 import signal
 import subprocess
@@ -19,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP = ROOT / "agents" / "sweep.py"
@@ -28,16 +28,8 @@ LR = "learning-rate=loguniform:1e-6:1e-2"
 CONFIG = {"samples": [LR], "fixed_flags": [], "seed": 1, "total_timesteps": None}
 
 
-def load(path: Path):
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[path.stem] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
-sweep = load(SWEEP)
-plot_sweep = load(PLOT)
+sweep = load_script("sweep")
+plot_sweep = load_script("plot_sweep")
 
 FAKE_AGENT = textwrap.dedent(
     """
