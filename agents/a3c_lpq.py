@@ -59,6 +59,10 @@ class Args:
     """the entropy factor beta"""
     vf_coef: float = 0.5
     """the value loss factor lambda_V (thesis 6.4.1); the value loss is vf_coef * 0.5 * (G - V)^2"""
+    precision: Literal["fp32", "bf16"] = "fp32"
+    """the workers' network forward passes (acting and learning): fp32, or bf16 under CPU
+    autocast; weights, optimizer statistics, returns and the loss stay float32, and the evaluator
+    and --evaluate play in fp32. The default is to be decided by measurement"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
@@ -336,6 +340,9 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
     obs, _ = env.reset(seed=seed)
     obs_buf[0].copy_(torch.from_numpy(obs))
+    # --precision bf16: the forward passes under autocast, their outputs cast to float32 for the
+    # sampling and the loss; backward and optimizer outside it. One context, entered per phase
+    precision = torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.precision == "bf16")
 
     while shared.keep_running():
         global_step = shared.global_step()
@@ -347,10 +354,10 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
             timer.lap("sync")
         # act with the synced local network until t_max steps or the episode ends
         terminated = truncated = False
-        with torch.inference_mode():
+        with torch.inference_mode(), precision:
             for t in range(args.t_max):
                 log_probs, _ = model(obs_buf[t : t + 1])
-                action = sample_action(log_probs[0].exp().tolist(), rng.random())
+                action = sample_action(log_probs[0].float().exp().tolist(), rng.random())
                 obs, reward, terminated, truncated, info = env.step(action)
                 actions[t], rewards[t] = action, reward
                 obs_buf[t + 1].copy_(torch.from_numpy(obs))
@@ -363,7 +370,9 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
             timer.lap("act")
         n = t + 1
         # one batched forward/backward over the rollout; row n gives V(s_last) to bootstrap from
-        log_probs, values = model(obs_buf[: n if terminated else n + 1])
+        with precision:
+            log_probs, values = model(obs_buf[: n if terminated else n + 1])
+        log_probs, values = log_probs.float(), values.float()  # the loss in float32
         bootstrap = 0.0 if terminated else values[n].item()
         returns = torch.from_numpy(n_step_returns(rewards[:n], bootstrap, args.gamma))
         loss, policy_loss, value_loss, entropy = a3c_loss(

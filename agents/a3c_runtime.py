@@ -97,6 +97,16 @@ def default_num_workers() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
+def native_bf16() -> bool:
+    """Whether this CPU computes bfloat16 natively (x86 AVX512-BF16 or AMX-BF16, ARM BF16 or
+    SVE-BF16); elsewhere torch emulates it, slower than fp32."""
+    try:
+        capabilities = torch.cpu.get_capabilities()
+    except (AttributeError, RuntimeError):  # an older torch, or cpuinfo failed
+        return False
+    return any(capabilities.get(k, False) for k in ("avx512_bf16", "amx_bf16", "bf16", "sve_bf16"))
+
+
 def resolve_defaults(args: Any) -> Any:
     """Fill the env-dependent defaults and reject bad numbers with a clear message."""
     from catch_env.wrappers import is_atari
@@ -119,6 +129,12 @@ def resolve_defaults(args: Any) -> Any:
         args.grad_clip = 25.0 if args.grad_clip_mode == "global-norm" else 40.0
     if args.scale_obs is None:
         args.scale_obs = atari
+    if getattr(args, "precision", "fp32") == "bf16" and not native_bf16():
+        print(
+            "warning: --precision bf16 on a CPU without native bfloat16 (AVX512-BF16, AMX or "
+            "ARM BF16): it is emulated and likely slower than fp32",
+            file=sys.stderr,
+        )
     checks = {
         "--total-timesteps": (args.total_timesteps, args.total_timesteps > 0, "> 0"),
         "--num-workers": (args.num_workers, args.num_workers >= 1, ">= 1"),

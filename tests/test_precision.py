@@ -1,0 +1,91 @@
+"""--precision fp32|bf16: bf16 runs the workers' forward passes under CPU autocast while the
+weights, optimizer statistics, returns and the loss stay float32."""
+
+import warnings
+
+import a3c_runtime as runtime
+import pytest
+import torch
+from conftest import SCRIPTS, TINY, load_script, read_evaluations, run_script
+from test_a3c_runtime import one_thread, shared_for, tiny_args  # noqa: F401  (one_thread: fixture)
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_bf16_worker_learns_in_process_with_float32_weights(name, one_thread):  # noqa: F811
+    module = load_script(name)
+    args = tiny_args(module, total_timesteps=60, t_max=5, precision="bf16")
+    shared = shared_for(module, args)
+    before = [p.detach().clone() for p in shared.params]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # normal runs print no warnings
+        module.worker(0, shared, args)
+    assert 60 <= shared.global_step() < 60 + args.t_max
+    assert shared.stats[0, 3] >= 60 // 5  # updates
+    assert torch.isfinite(shared.stats[0]).all()
+    # every parameter learns but the biases the spatial softmax ignores (see the fp32 test)
+    no_gradient = {"a3c_ss": {"torso.2.bias"}, "a3c_ww": {"convs.2.bias"}}.get(name, set())
+    after = dict(shared.model.named_parameters())
+    for key, old in zip(after, before, strict=True):
+        new = after[key].detach()
+        assert new.dtype == torch.float32 and torch.isfinite(new).all(), key
+        assert key in no_gradient or not torch.equal(old, new), f"{key} did not learn"
+    for statistic in shared.optimizer.state_dict()["square_avg"]:  # RMSprop's, float32
+        assert statistic.dtype == torch.float32 and torch.isfinite(statistic).all()
+
+
+@pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm"])
+def test_bf16_forward_outputs_cast_back_give_a_float32_loss(name):
+    """The worker's learning forward: bf16 inside autocast, float32 after its cast."""
+    module = load_script(name)
+    args = tiny_args(module, precision="bf16")
+    model = module.AGENT.build_network(3, args)
+    obs = torch.randint(0, 256, (6, 4, 84, 84), dtype=torch.uint8)
+    inputs = (obs[:, None], model.initial_state(1)) if name == "a3c_lstm" else (obs,)
+    precision = torch.autocast("cpu", dtype=torch.bfloat16, enabled=True)
+    with precision:
+        log_probs, values = model(*inputs)[:2]
+    assert values.dtype == torch.bfloat16  # the forward did run in bf16
+    log_probs, values = log_probs.float(), values.float()
+    if name == "a3c_lstm":
+        log_probs, values = log_probs[:, 0], values[:, 0]
+    returns = torch.zeros(5)
+    loss = module.a3c_loss(log_probs[:5], torch.zeros(5, dtype=torch.int64), values[:5], returns,
+                           args.ent_coef, args.vf_coef)[0]  # fmt: skip
+    assert loss.dtype == torch.float32
+    grads = torch.autograd.grad(loss, list(model.parameters()))
+    assert all(g.dtype == torch.float32 and torch.isfinite(g).all() for g in grads)
+
+
+def test_bf16_without_native_support_warns_in_one_line(monkeypatch, capsys):
+    a3c = load_script("a3c_ff")
+    monkeypatch.setattr(runtime, "native_bf16", lambda: False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        runtime.resolve_defaults(a3c.Args(precision="fp32"))
+        assert capsys.readouterr().err == ""  # fp32 never warns
+        runtime.resolve_defaults(a3c.Args(precision="bf16"))
+    err = capsys.readouterr().err
+    assert err.startswith("warning: --precision bf16") and err.count("\n") == 1, err
+    monkeypatch.setattr(runtime, "native_bf16", lambda: True)
+    runtime.resolve_defaults(a3c.Args(precision="bf16"))
+    assert capsys.readouterr().err == ""
+
+
+def test_native_bf16_reads_torchs_cpu_capabilities(monkeypatch):
+    assert isinstance(runtime.native_bf16(), bool)
+    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: {"avx512_bf16": False, "avx2": True})
+    assert runtime.native_bf16() is False
+    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: {"amx_bf16": True})
+    assert runtime.native_bf16() is True
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm"])
+def test_a_tiny_bf16_run_trains_and_evaluates(name, tmp_path):
+    run_dir = tmp_path / "run"
+    flags = ["--total-timesteps", "1000", "--eval-interval", "500", "--run-dir", str(run_dir)]
+    result = run_script(name, *TINY, *flags, "--precision", "bf16")
+    assert result.returncode == 0, result.stderr
+    assert "warning" not in result.stderr.lower() or not runtime.native_bf16()
+    rows = read_evaluations(run_dir)
+    assert rows and int(rows[-1]["global_step"]) >= 1000
