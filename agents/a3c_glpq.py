@@ -64,7 +64,8 @@ class Args:
     precision: Literal["fp32", "bf16"] = "fp32"
     """the workers' network forward passes (acting and learning): fp32, or bf16 under CPU
     autocast; weights, optimizer statistics, returns and the loss stay float32, and the evaluator
-    and --evaluate play in fp32. The default is to be decided by measurement"""
+    and --evaluate play in fp32. Default fp32: at one env per worker bf16 was slower on Catch
+    (results/precision_catch)"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
