@@ -129,7 +129,11 @@ def resolve_defaults(args: Any) -> Any:
         args.grad_clip = 25.0 if args.grad_clip_mode == "global-norm" else 40.0
     if args.scale_obs is None:
         args.scale_obs = atari
-    if getattr(args, "precision", "fp32") == "bf16" and not native_bf16():
+    if getattr(args, "precision", "fp32") == "auto":
+        # bf16 pays off only when the batch amortises autocast's weight casts (measured)
+        batched = getattr(args, "envs_per_worker", 1) > 1
+        args.precision = "bf16" if batched and native_bf16() else "fp32"
+    elif getattr(args, "precision", "fp32") == "bf16" and not native_bf16():
         print(
             "warning: --precision bf16 on a CPU without native bfloat16 (AVX512-BF16, AMX or "
             "ARM BF16): it is emulated and likely slower than fp32",
@@ -138,6 +142,11 @@ def resolve_defaults(args: Any) -> Any:
     checks = {
         "--total-timesteps": (args.total_timesteps, args.total_timesteps > 0, "> 0"),
         "--num-workers": (args.num_workers, args.num_workers >= 1, ">= 1"),
+        "--envs-per-worker": (
+            getattr(args, "envs_per_worker", 1),
+            getattr(args, "envs_per_worker", 1) >= 1,
+            ">= 1",
+        ),
         "--learning-rate": (args.learning_rate, args.learning_rate >= 0, ">= 0"),
         "--t-max": (args.t_max, args.t_max >= 1, ">= 1"),
         "--gamma": (args.gamma, 0 <= args.gamma <= 1, "in [0, 1]"),
@@ -325,10 +334,11 @@ class PhaseTimer:
             self.spent[phase] += now - self.last
         self.last = now
 
-    def timed_env(self, env: gym.Env) -> gym.Env:
+    def timed_env(self, env: gym.Env | gym.vector.VectorEnv) -> gym.Env | gym.vector.VectorEnv:
         timer = self
+        base = gym.vector.VectorWrapper if isinstance(env, gym.vector.VectorEnv) else gym.Wrapper
 
-        class TimedStep(gym.Wrapper):
+        class TimedStep(base):
             def step(self, action):
                 start = time.perf_counter()
                 result = self.env.step(action)

@@ -9,7 +9,6 @@
 # signals, --evaluate, the shared optimizers) is agents/a3c_runtime.py.
 import math
 import os
-import random
 from dataclasses import dataclass
 from typing import Literal
 
@@ -45,6 +44,10 @@ class Args:
     """total global env steps T_max (default: 1e6 for Catch, 1e8 for ALE ids)"""
     num_workers: int = default_num_workers()
     """the number of actor-learner processes (default: the number of CPU cores)"""
+    envs_per_worker: int = 1
+    """K, the envs each worker steps together: it acts on all K with one batched forward and
+    learns from the K x t_max rollout in one update (batched actors inside each Hogwild worker,
+    as in PAAC, Clemente et al. 2017); 1 is the thesis's algorithm"""
     time_limit: float | None = None
     """stop training after this many seconds of wall time, as if T_max was reached"""
 
@@ -61,11 +64,12 @@ class Args:
     """the entropy factor beta"""
     vf_coef: float = 0.5
     """the value loss factor lambda_V (thesis 6.4.1); the value loss is vf_coef * 0.5 * (G - V)^2"""
-    precision: Literal["fp32", "bf16"] = "fp32"
+    precision: Literal["auto", "fp32", "bf16"] = "auto"
     """the workers' network forward passes (acting and learning): fp32, or bf16 under CPU
     autocast; weights, optimizer statistics, returns and the loss stay float32, and the evaluator
-    and --evaluate play in fp32. Default fp32: at one env per worker bf16 was slower on Catch
-    (results/precision_catch)"""
+    and --evaluate play in fp32. auto: bf16 with K > 1 envs per worker on a CPU with native
+    bf16, else fp32 (bf16 learned Catch as well as fp32, but at K = 1 it was slower:
+    results/precision_catch, results/throughput_batched)"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
@@ -140,6 +144,14 @@ def make_env(env_id: str, render_mode: str | None = None) -> gym.Env:
     from catch_env.wrappers import make_env as make_wrapped_env
 
     return make_wrapped_env(env_id, render_mode=render_mode)
+
+
+def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
+    """make_env's envs, num_envs of them stepped together (Catch: its NumPy vector env); an
+    ended episode's env is reset in the same step (catch_env.wrappers.make_vector_env)."""
+    from catch_env.wrappers import make_vector_env as make_wrapped_vector_env
+
+    return make_wrapped_vector_env(env_id, num_envs)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -237,24 +249,30 @@ def init_parameters(model: nn.Module, weight_init: str, bias_init: float | None)
             nn.init.zeros_(layer.bias)
 
 
-def sample_action(probs: list[float], u: float) -> int:
-    """Inverse-CDF sampling with u ~ U[0, 1): a few microseconds for one state, unlike
-    torch.multinomial's per-call overhead."""
-    u *= sum(probs)
-    for action, p in enumerate(probs):
-        u -= p
-        if u < 0.0:
-            return action
-    return len(probs) - 1
+def sample_actions(probs: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """Inverse-CDF sampling of one action per row of probs (K, A), with uniforms (K,) ~ U[0, 1):
+    a few microseconds, unlike torch.multinomial's per-call overhead. An action of probability
+    0 is never drawn."""
+    cdf = probs.cumsum(axis=1)
+    return np.minimum((cdf <= uniforms[:, None] * cdf[:, -1:]).sum(axis=1), probs.shape[1] - 1)
 
 
-def n_step_returns(rewards: np.ndarray, bootstrap_value: float, gamma: float) -> np.ndarray:
-    """G_i = r_i + gamma * G_{i+1}, starting from G = V(s_last), or 0 after a terminal state."""
-    returns = np.empty(len(rewards), dtype=np.float32)
-    g = bootstrap_value
-    for i in range(len(rewards) - 1, -1, -1):
-        g = rewards[i] + gamma * g
-        returns[i] = g
+def n_step_returns(
+    rewards: np.ndarray,
+    dones: np.ndarray,
+    done_values: np.ndarray,
+    bootstrap_values: np.ndarray,
+    gamma: float,
+) -> np.ndarray:
+    """The n-step returns of a rollout of K envs, all (T, K) but bootstrap_values (K,):
+    G_t = r_t + gamma * G_{t+1} from G_T = V(s_T), the last state's value, except where an
+    episode ended at step t (dones): there G_t = r_t + gamma * done_values_t, which is 0 after a
+    terminal state and V(last state) after a truncation."""
+    returns = np.empty_like(rewards)
+    g = bootstrap_values
+    for t in range(len(rewards) - 1, -1, -1):
+        g = rewards[t] + gamma * np.where(dones[t], done_values[t], g)
+        returns[t] = g
     return returns
 
 
@@ -278,22 +296,29 @@ def a3c_loss(
 
 def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None = None) -> None:
     """One actor-learner (Algorithm 1): sync, act t_max steps, one batched update, repeat.
+    With --envs-per-worker K it steps K envs, acting on all K with one batched forward, and
+    learns from the K x t_max rollout in one update. The rollout ends early only when every
+    env's episode ends at the same step: with K = 1, at the end of the episode, as in the thesis.
     `timer` (benchmarks/a3c_step_profile.py) times the phases; None costs nothing per step."""
     seed = process_seed(args.seed, worker_id)
     seed_everything(seed)
-    rng = random.Random(seed)
-    env = make_env(args.env)
+    rng = np.random.default_rng(seed)
+    envs = make_vector_env(args.env, args.envs_per_worker)
     if timer is not None:
-        env = timer.timed_env(env)
-    model = ActorCritic(env.action_space.n, args).to(memory_format=torch.channels_last)
+        envs = timer.timed_env(envs)
+    num_envs = envs.num_envs
+    model = ActorCritic(envs.single_action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
-    # the frames of the rollout, channels-last like the network's input (see ActorCritic)
-    obs_buf = torch.zeros((args.t_max + 1, *env.observation_space.shape), dtype=torch.uint8)
-    obs_buf = obs_buf.contiguous(memory_format=torch.channels_last)
-    actions = np.zeros(args.t_max, dtype=np.int64)  # NumPy: cheaper to write one by one
-    rewards = np.zeros(args.t_max, dtype=np.float32)
+    # the frames of the rollout (t_max + 1, K, 4, 84, 84), each step's K frames channels-last
+    # like the network's input (see ActorCritic), and any steps' rows a view of one batch
+    obs_buf = torch.zeros((args.t_max + 1, num_envs, 84, 84, 4), dtype=torch.uint8)
+    obs_buf = obs_buf.permute(0, 1, 4, 2, 3)
+    actions = np.zeros((args.t_max, num_envs), dtype=np.int64)
+    rewards = np.zeros((args.t_max, num_envs), dtype=np.float32)
+    dones = np.zeros((args.t_max, num_envs), dtype=bool)  # an episode ended at this step
+    done_values = np.zeros((args.t_max, num_envs), dtype=np.float32)  # V(s_last) if truncated
     stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
-    obs, _ = env.reset(seed=seed)
+    obs, _ = envs.reset(seed=seed)
     obs_buf[0].copy_(torch.from_numpy(obs))
     # --precision bf16: the forward passes under autocast, their outputs cast to float32 for the
     # sampling and the loss; backward and optimizer outside it. One context, entered per phase
@@ -307,34 +332,48 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
             torch._foreach_copy_(params, shared.params)  # theta' <- theta
         if timer is not None:
             timer.lap("sync")
-        # act with the synced local network until t_max steps or the episode ends
-        terminated = truncated = False
+        # act with the synced local network for t_max steps (or until every episode ends)
+        dones[:] = False
         with torch.inference_mode(), precision:
             for t in range(args.t_max):
-                log_probs, _ = model(obs_buf[t : t + 1])
-                action = sample_action(log_probs[0].float().exp().tolist(), rng.random())
-                obs, reward, terminated, truncated, info = env.step(action)
+                log_probs, _ = model(obs_buf[t])
+                action = sample_actions(log_probs.float().exp().numpy(), rng.random(num_envs))
+                # an ended episode's env returns its next episode's first frame (autoreset)
+                obs, reward, terminated, truncated, info = envs.step(action)
                 actions[t], rewards[t] = action, reward
                 obs_buf[t + 1].copy_(torch.from_numpy(obs))
-                if terminated or truncated:
-                    stats[0] += 1
-                    stats[1] += float(info["episode"]["r"])
-                    stats[2] += int(info["episode"]["l"])
-                    break
+                ended = terminated | truncated
+                if ended.any():
+                    dones[t] = ended
+                    episodes = info["final_info"]["_episode"]
+                    stats[0] += int(episodes.sum())
+                    stats[1] += float(info["final_info"]["episode"]["r"][episodes].sum())
+                    stats[2] += int(info["final_info"]["episode"]["l"][episodes].sum())
+                    done_values[t] = 0.0
+                    cut = truncated & ~terminated  # a time limit: bootstrap from V(s_last)
+                    if cut.any():
+                        last_obs = torch.from_numpy(np.stack(info["final_obs"][cut]))
+                        done_values[t, cut] = model(last_obs)[1].float().numpy()
+                    if ended.all():
+                        break
         if timer is not None:
             timer.lap("act")
         n = t + 1
-        # one batched forward/backward over the rollout; row n gives V(s_last) to bootstrap from
+        # one batched forward/backward over the n x K states; row n gives V(s_n) to bootstrap
+        # from, unless every episode has ended there
+        bootstrap = not dones[n - 1].all()
         with precision:
-            log_probs, values = model(obs_buf[: n if terminated else n + 1])
+            log_probs, values = model(obs_buf[: n + 1 if bootstrap else n].flatten(0, 1))
         log_probs, values = log_probs.float(), values.float()  # the loss in float32
-        bootstrap = 0.0 if terminated else values[n].item()
-        returns = torch.from_numpy(n_step_returns(rewards[:n], bootstrap, args.gamma))
+        bootstrap_values = values[n * num_envs :].detach().numpy() if bootstrap else 0.0
+        returns = n_step_returns(
+            rewards[:n], dones[:n], done_values[:n], bootstrap_values, args.gamma
+        )
         loss, policy_loss, value_loss, entropy = a3c_loss(
-            log_probs[:n],
-            torch.from_numpy(actions[:n]),
-            values[:n],
-            returns,
+            log_probs[: n * num_envs],
+            torch.from_numpy(actions[:n].ravel()),
+            values[: n * num_envs],
+            torch.from_numpy(returns.ravel()),
             args.ent_coef,
             args.vf_coef,
         )
@@ -350,7 +389,7 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
         if timer is not None:
             timer.lap("optimizer")
 
-        shared.steps[worker_id] += n
+        shared.steps[worker_id] += n * num_envs
         stats[3] += 1
         # Python floats: adding the loss tensors themselves would chain every rollout's autograd
         # graph onto stats, a memory leak
@@ -358,12 +397,8 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
             [policy_loss.item(), value_loss.item(), entropy.item(), grad_norm]
         )
         shared.stats[worker_id].copy_(stats)
-        if terminated or truncated:
-            obs, _ = env.reset()
-            obs_buf[0].copy_(torch.from_numpy(obs))
-        else:
-            obs_buf[0].copy_(obs_buf[n])
-    env.close()
+        obs_buf[0].copy_(obs_buf[n])  # the next rollout starts where this one stopped
+    envs.close()
 
 
 AGENT = Agent(

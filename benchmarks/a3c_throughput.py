@@ -1,13 +1,16 @@
-"""Global env steps per second of the agent scripts on Catch-v0, with the default worker count.
+"""Global env steps per second of the agent scripts, with the default worker count.
 
     python benchmarks/a3c_throughput.py [SCRIPT ...] [--seconds 30] [--rounds 1]
-                                        [--num-workers N] [--no-baseline]
+                                        [--num-workers N] [--no-baseline] [--env Catch-v0]
+                                        [--envs-per-worker 1 [K ...]] [--precision fp32 [bf16]]
 
 It runs each script's own training loop (evaluations included) for --seconds and reports the
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
 SCRIPTs (e.g. agents/a3c_lws.py) are compared with it: time per step relative to a3c_ff's, from
-the same run. With --rounds R the scripts take turns R times and the means are reported, so that
-slow drifts of a shared machine's speed fall on all of them alike.
+the same run. Every script runs at every setting, each value of --envs-per-worker with each
+--precision (K = 1 with fp32 is the thesis's algorithm). With --rounds R the scripts take turns R
+times and the means are reported, so that slow drifts of a shared machine's speed fall on all of
+them alike.
 
 For comparison it first runs a straightforward Hogwild loop of A3C FF for as long: load_state_dict
 to sync, a fresh tensor per step, torch.optim-style per-parameter clipping and RMSprop. For
@@ -93,6 +96,16 @@ def flops_per_env_step(a3c, t_max: int) -> float:
     return act.get_total_flops() + learn.get_total_flops() / t_max
 
 
+def baseline_returns(rewards: np.ndarray, bootstrap_value: float, gamma: float) -> np.ndarray:
+    """G_i = r_i + gamma * G_{i+1}, starting from G = V(s_last), or 0 after a terminal state."""
+    returns = np.empty(len(rewards), dtype=np.float32)
+    g = bootstrap_value
+    for i in range(len(rewards) - 1, -1, -1):
+        g = rewards[i] + gamma * g
+        returns[i] = g
+    return returns
+
+
 def baseline_worker(a3c, worker_id, global_model, square_avg, steps, stop, args) -> None:
     """A straightforward Hogwild A3C worker: the same algorithm, written plainly."""
     torch.set_num_threads(1)
@@ -118,7 +131,7 @@ def baseline_worker(a3c, worker_id, global_model, square_avg, steps, stop, args)
         log_probs, values = model(torch.cat(observations))
         n = len(rewards)
         bootstrap = 0.0 if terminated else values[n].item()
-        returns = torch.from_numpy(a3c.n_step_returns(np.array(rewards), bootstrap, args.gamma))
+        returns = torch.from_numpy(baseline_returns(np.array(rewards), bootstrap, args.gamma))
         loss = a3c.a3c_loss(log_probs[:n], torch.tensor(actions), values[:n], returns,
                             args.ent_coef, args.vf_coef)[0]  # fmt: skip
         model.zero_grad()
@@ -141,10 +154,12 @@ def children_cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> tuple[float, float]:
+def run_baseline(
+    a3c, env: str, num_workers: int, seconds: float, warmup: float
+) -> tuple[float, float]:
     """Returns (steps/s after the warm-up, total steps / worker CPU-seconds * num_workers)."""
-    args = a3c.resolve_defaults(a3c.Args(num_workers=num_workers))
-    global_model = a3c.ActorCritic(3, args)
+    args = a3c.resolve_defaults(a3c.Args(num_workers=num_workers, env=env))
+    global_model = a3c.ActorCritic(num_actions(a3c, env), args)
     global_model.share_memory()
     square_avg = [torch.zeros_like(p).share_memory_() for p in global_model.parameters()]
     steps = torch.zeros(num_workers, dtype=torch.int64).share_memory_()
@@ -171,11 +186,21 @@ def run_baseline(a3c, num_workers: int, seconds: float, warmup: float) -> tuple[
     return sps, per_cpu
 
 
-def run_script(a3c, num_workers: int, seconds: float) -> tuple[float, float]:
+def num_actions(a3c, env_id: str) -> int:
+    env = a3c.make_env(env_id)
+    n = env.action_space.n
+    env.close()
+    return n
+
+
+def run_script(
+    a3c, env: str, num_workers: int, seconds: float, envs_per_worker: int, precision: str
+) -> tuple[float, float]:
     """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers)."""
     with tempfile.TemporaryDirectory() as run_dir:
-        args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir,
-                        log_interval=max(5.0, seconds / 4))  # fmt: skip
+        args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir, env=env,
+                        log_interval=max(5.0, seconds / 4), envs_per_worker=envs_per_worker,
+                        precision=precision)  # fmt: skip
         args.total_timesteps = 10**9  # the time limit ends the run
         cpu_before = children_cpu_seconds()
         summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
@@ -190,7 +215,14 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=1, help="measurements per script")
     parser.add_argument("--num-workers", type=int, default=None, help="default: a3c_ff's")
     parser.add_argument("--no-baseline", action="store_true", help="skip the baseline loop")
+    parser.add_argument("--env", default="Catch-v0", help="Catch-v0 or an ALE id")
+    parser.add_argument("--envs-per-worker", type=int, nargs="+", default=[1],
+                        help="the K values to measure")  # fmt: skip
+    parser.add_argument("--precision", nargs="+", default=["fp32"], choices=["fp32", "bf16"],
+                        help="the precisions to measure")  # fmt: skip
     opts = parser.parse_args()
+    if min(opts.envs_per_worker) < 1:
+        parser.error("--envs-per-worker must be >= 1")
     if opts.seconds <= 0:
         parser.error("--seconds must be > 0")
     if opts.rounds < 1:
@@ -205,6 +237,13 @@ def main() -> None:
     num_workers = opts.num_workers or a3c.Args().num_workers
     if num_workers < 1:
         parser.error("--num-workers must be >= 1")
+    try:
+        a3c.resolve_defaults(a3c.Args(env=opts.env))
+    except a3c_runtime.UsageError as e:
+        parser.error(str(e))
+    settings = [
+        (k, p) for k in dict.fromkeys(opts.envs_per_worker) for p in dict.fromkeys(opts.precision)
+    ]
 
     cpu = platform.processor() or platform.machine()
     if os.path.exists("/proc/cpuinfo"):
@@ -212,8 +251,9 @@ def main() -> None:
             cpu = next(
                 (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu
             )
-    print(f"machine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}; {num_workers} "
-          f"workers; {opts.seconds:g} s per measurement, {opts.rounds} round(s)")  # fmt: skip
+    print(f"machine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}; {opts.env}; "
+          f"{num_workers} workers; {opts.seconds:g} s per measurement, {opts.rounds} "
+          f"round(s)")  # fmt: skip
     gflops = matmul_gflops()
     print(f"matmul: {gflops:.1f} GFLOP/s per core (fp32, 1 thread)")
     bounds = {}
@@ -226,26 +266,35 @@ def main() -> None:
     baseline = None
     if not opts.no_baseline:
         print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
-        baseline = run_baseline(a3c, num_workers, opts.seconds, warmup=3.0)
+        baseline = run_baseline(a3c, opts.env, num_workers, opts.seconds, warmup=3.0)
         print(f"baseline: {baseline[0]:,.0f} steps/s ({baseline[1]:,.0f} per {num_workers} "
               f"CPU-seconds)")  # fmt: skip
-    measured = {name: [] for name in scripts}
+    measured = {(name, *setting): [] for setting in settings for name in scripts}
     for _ in range(opts.rounds):
-        for name, module in scripts.items():
-            print(f"load average {os.getloadavg()[0]:.2f}; {name} ...", flush=True)
-            measured[name].append(run_script(module, num_workers, opts.seconds))
+        for name, k, precision in measured:
+            print(
+                f"load average {os.getloadavg()[0]:.2f}; {name} K={k} {precision} ...", flush=True
+            )
+            measured[name, k, precision].append(
+                run_script(scripts[name], opts.env, num_workers, opts.seconds, k, precision)
+            )
 
-    print(f"\n{'script':<12} {'steps/s':>9} {'per CPU-s':>10} {'of bound':>9} "
-          f"{'time/step vs a3c_ff':>20}")  # fmt: skip
-    ff_sps, ff_per_cpu = np.mean(measured["a3c_ff"], axis=0)
-    for name, runs in measured.items():
+    print(f"\n{'script':<12} {'K':>3} {'precision':>9} {'steps/s':>9} {'per CPU-s':>10} "
+          f"{'of bound':>9} {'time/step vs a3c_ff':>20} {'vs baseline':>11}")  # fmt: skip
+    for (name, k, precision), runs in measured.items():
         sps, per_cpu = np.mean(runs, axis=0)
-        line = f"{name:<12} {sps:>9,.0f} {per_cpu:>10,.0f} {per_cpu / bounds[name]:>9.0%}"
-        line += f" {ff_sps / sps:>9.2f}x wall {ff_per_cpu / per_cpu:>5.2f}x CPU"
+        ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision], axis=0)
+        line = f"{name:<12} {k:>3} {precision:>9} {sps:>9,.0f} {per_cpu:>10,.0f} "
+        line += f"{per_cpu / bounds[name]:>9.0%} {ff_sps / sps:>9.2f}x wall "
+        line += f"{ff_per_cpu / per_cpu:>5.2f}x CPU"
+        if baseline is not None:
+            line += f" {sps / baseline[0]:>10.2f}x"
         print(line)
     if baseline is not None:
-        print(f"a3c_ff vs the baseline loop: {ff_sps / baseline[0]:.2f}x steps/s, "
-              f"{ff_per_cpu / baseline[1]:.2f}x per CPU-second")  # fmt: skip
+        for k, precision in settings:
+            ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision], axis=0)
+            print(f"a3c_ff K={k} {precision} vs the baseline loop: {ff_sps / baseline[0]:.2f}x "
+                  f"steps/s, {ff_per_cpu / baseline[1]:.2f}x per CPU-second")  # fmt: skip
 
 
 if __name__ == "__main__":

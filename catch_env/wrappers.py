@@ -7,6 +7,10 @@ Built on `gymnasium.wrappers`; only what Gymnasium lacks is written here:
   `AtariPreprocessing(terminal_on_life_loss=True)` instead restarts the whole game at
   every lost life, which changes the task.
 - `FireResetEnv`: presses FIRE after a reset, for games that wait for it.
+- `FrameStackVectorEnv`: the frame stack for Catch's NumPy vector env, with same-step
+  autoreset (Gymnasium has no vector frame stack).
+
+`make_vector_env` gives N preprocessed envs behind one Gymnasium `VectorEnv`.
 """
 
 from __future__ import annotations
@@ -14,6 +18,10 @@ from __future__ import annotations
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv, VectorWrapper
+from gymnasium.vector.utils import batch_space
 from gymnasium.wrappers import (
     AtariPreprocessing,
     ClipReward,
@@ -147,6 +155,94 @@ def make_env(
     return FrameStackObservation(env, frame_stack)
 
 
+class FrameStackVectorEnv(VectorWrapper):
+    """The last `frame_stack` frames of each env of a vector env, with same-step autoreset: the
+    step that ends an env's episode returns the first observation of its next one and puts the
+    last observation in `infos["final_obs"]`, as `SyncVectorEnv(autoreset_mode=SAME_STEP)`
+    does. It wraps a next-step-autoreset env whose `reset` takes `options={"reset_mask": m}`
+    (Catch's `CatchVectorEnv`), and matches a same-step `SyncVectorEnv` of `make_env` envs
+    (`FrameStackObservation` per env, the stack cleared on reset) frame for frame.
+
+    `infos` holds only what ended episodes give: `final_obs` and `final_info["episode"]` (the
+    episode's reward sum "r" and length "l"), each with its `_`-mask, in `SyncVectorEnv`'s
+    layout. The returned observations are the wrapper's own buffer, overwritten by the next
+    step (as `copy=False` in Gymnasium's vector envs).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, env: VectorEnv, frame_stack: int = 4) -> None:
+        super().__init__(env)
+        num_envs, frame_shape = env.num_envs, env.single_observation_space.shape
+        self.single_observation_space = spaces.Box(
+            0, 255, (frame_stack, *frame_shape), dtype=np.uint8
+        )
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.metadata = {**env.metadata, "autoreset_mode": AutoresetMode.SAME_STEP}
+        self._stack = np.zeros((num_envs, frame_stack, *frame_shape), dtype=np.uint8)
+        self._returns = np.zeros(num_envs, dtype=np.float64)
+        self._lengths = np.zeros(num_envs, dtype=np.int64)
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._stack[:] = obs[:, None]
+        self._returns[:], self._lengths[:] = 0.0, 0
+        return self._stack, info
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        obs, rewards, terminated, truncated, _ = self.env.step(actions)
+        self._stack[:, :-1] = self._stack[:, 1:]  # NumPy buffers the overlapping copy
+        self._stack[:, -1] = obs
+        self._returns += rewards
+        self._lengths += 1
+        ended = terminated | truncated
+        if not ended.any():
+            return self._stack, rewards, terminated, truncated, {}
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for i in np.flatnonzero(ended):
+            final_obs[i] = self._stack[i].copy()
+        episode = {"r": self._returns.copy(), "l": self._lengths.copy()}
+        infos = {
+            "final_obs": final_obs,
+            "_final_obs": ended.copy(),
+            "final_info": {"episode": episode, "_episode": ended.copy()},
+            "_final_info": ended.copy(),
+        }
+        obs, _ = self.env.reset(options={"reset_mask": ended})
+        self._stack[ended] = obs[ended][:, None]
+        self._returns[ended], self._lengths[ended] = 0.0, 0
+        return self._stack, rewards, terminated, truncated, infos
+
+
+def make_vector_env(
+    env_id: str, num_envs: int, *, frame_stack: int = 4, **kwargs: Any
+) -> VectorEnv:
+    """`num_envs` envs of `env_id` with `make_env`'s preprocessing behind one `VectorEnv`, with
+    same-step autoreset: an ended episode's last observation and statistics are in
+    `infos["final_obs"]` and `infos["final_info"]["episode"]` ("r": the raw score, "l"), each
+    with its `_`-mask, and the returned observation is already the next episode's first.
+
+    Catch: Catch's NumPy vector env (`gym.make_vec`) under `FrameStackVectorEnv`. Other ids:
+    a `SyncVectorEnv` of `make_env` envs (for ALE, the emulators step one after another in
+    this process). Observations (num_envs, frame_stack, 84, 84) uint8, overwritten by the next
+    step. Keyword arguments go to `make_env` (for Catch, to `gym.make_vec`).
+    """
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+    if not is_atari(env_id) and gym.spec(env_id).vector_entry_point is not None:
+        env = gym.make_vec(env_id, num_envs=num_envs, copy=False, **kwargs)
+        return FrameStackVectorEnv(env, frame_stack)
+    return SyncVectorEnv(
+        [lambda: make_env(env_id, frame_stack=frame_stack, **kwargs) for _ in range(num_envs)],
+        copy=False,
+        autoreset_mode=AutoresetMode.SAME_STEP,
+    )
+
+
 def observation_scale(env_id: str) -> float:
     """The thesis's input scaling: Atari frames / 255, Catch frames unscaled (0..255).
 
@@ -159,7 +255,9 @@ def observation_scale(env_id: str) -> float:
 __all__ = [
     "EpisodicLifeEnv",
     "FireResetEnv",
+    "FrameStackVectorEnv",
     "is_atari",
     "make_env",
+    "make_vector_env",
     "observation_scale",
 ]

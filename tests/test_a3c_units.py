@@ -1,5 +1,6 @@
-"""Unit tests of agents/a3c_ff.py's algorithm: n-step returns, sampling, the loss, init and the
-network, against hand-computed values (the runtime's pieces: tests/test_a3c_runtime.py)."""
+"""Unit tests of agents/a3c_ff.py's algorithm: the loss, init and the network, against
+hand-computed values (n-step returns and sampling: tests/test_batched_actors.py; the runtime's
+pieces: tests/test_a3c_runtime.py)."""
 
 import math
 
@@ -12,23 +13,6 @@ from conftest import load_script
 @pytest.fixture(scope="module")
 def a3c():
     return load_script("a3c_ff")
-
-
-def test_n_step_returns_bootstrap_and_terminal(a3c):
-    rewards = np.array([1.0, 0.0, 2.0], dtype=np.float32)
-    # G2 = 2 + 0.5 * 4 = 4, G1 = 0 + 0.5 * 4 = 2, G0 = 1 + 0.5 * 2 = 2
-    np.testing.assert_allclose(a3c.n_step_returns(rewards, 4.0, 0.5), [2.0, 2.0, 4.0])
-    # terminal: G2 = 2, G1 = 1, G0 = 1.5
-    np.testing.assert_allclose(a3c.n_step_returns(rewards, 0.0, 0.5), [1.5, 1.0, 2.0])
-
-
-def test_sample_action_inverse_cdf(a3c):
-    probs = [0.2, 0.3, 0.5]
-    assert [a3c.sample_action(probs, u) for u in (0.0, 0.19, 0.21, 0.49, 0.51, 0.999)] == [
-        0, 0, 1, 1, 2, 2,
-    ]  # fmt: skip
-    assert a3c.sample_action([0.0, 1.0, 0.0], 0.0) == 1  # never an action of probability 0
-    assert a3c.sample_action([0.5, 0.5], 0.9999999999) == 1
 
 
 def test_a3c_loss_matches_hand_computation(a3c):

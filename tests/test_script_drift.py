@@ -79,7 +79,7 @@ def test_the_drift_check_sees_a_changed_line(tmp_path, monkeypatch):
     import conftest
 
     source = (AGENTS / "a3c_ss.py").read_text()
-    changed = source.replace("returns[i] = g", "returns[i] = g * 1.0")
+    changed = source.replace("returns[t] = g", "returns[t] = g * 1.0")
     assert changed != source
     (tmp_path / "a3c_ss.py").write_text(changed)
     (tmp_path / "a3c_ff.py").write_text((AGENTS / "a3c_ff.py").read_text())

@@ -95,3 +95,75 @@ def test_life_loss_as_terminal_continues_the_same_game():
     assert terminated and ale.lives() == 4
     env.reset()
     assert ale.lives() == 4  # the game went on; it was not restarted
+
+
+def test_catch_vector_env_matches_a_same_step_sync_vector_env_of_make_env():
+    """make_vector_env("Catch-v0", N): Catch's NumPy vector env under FrameStackVectorEnv, frame
+    for frame what Gymnasium's SyncVectorEnv of make_env envs gives with same-step autoreset:
+    observations, rewards, ends, the last observation and the statistics of ended episodes."""
+    from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+    from catch_env.wrappers import FrameStackVectorEnv, make_vector_env
+
+    num_envs = 5
+    ours = make_vector_env("Catch-v0", num_envs)
+    assert isinstance(ours, FrameStackVectorEnv)
+    assert ours.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    reference = SyncVectorEnv(
+        [lambda: make_env("Catch-v0")] * num_envs, autoreset_mode=AutoresetMode.SAME_STEP
+    )
+    obs, _ = ours.reset(seed=3)
+    expected, _ = reference.reset(seed=3)
+    assert obs.shape == (num_envs, 4, 84, 84) and ours.single_observation_space.shape == (4, 84, 84)
+    np.testing.assert_array_equal(obs, expected)
+    rng = np.random.default_rng(0)
+    ended_episodes = 0
+    for _ in range(40):
+        actions = rng.integers(0, 3, num_envs)
+        obs, rewards, terminated, truncated, info = ours.step(actions)
+        expected, ref_rewards, ref_terminated, ref_truncated, ref_info = reference.step(actions)
+        np.testing.assert_array_equal(obs, expected)
+        np.testing.assert_array_equal(rewards, ref_rewards)
+        np.testing.assert_array_equal(terminated, ref_terminated)
+        np.testing.assert_array_equal(truncated, ref_truncated)
+        if terminated.any():
+            ended = ref_info["_final_obs"]
+            np.testing.assert_array_equal(info["_final_obs"], ended)
+            mine, theirs = info["final_obs"][ended], ref_info["final_obs"][ended]
+            np.testing.assert_array_equal(np.stack(mine), np.stack(theirs))
+            for key in ("r", "l"):
+                np.testing.assert_array_equal(
+                    info["final_info"]["episode"][key][ended],
+                    ref_info["final_info"]["episode"][key][ended],
+                )
+            ended_episodes += int(ended.sum())
+        else:
+            assert info == {}
+    assert ended_episodes == 2 * num_envs  # episodes of 15 steps end at steps 15 and 30
+
+
+def test_atari_vector_env_resets_ended_episodes_in_the_same_step():
+    pytest.importorskip("ale_py")
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("BreakoutNoFrameskip-v4", 2, terminal_on_life_loss=True)
+    obs, _ = envs.reset(seed=0)
+    assert obs.shape == (2, 4, 84, 84) and obs.dtype == np.uint8
+    for _ in range(2000):
+        obs, _, terminated, truncated, info = envs.step(np.array([0, 0]))  # NOOP: lives are lost
+        if terminated.any():
+            break
+    assert terminated.any(), "no life lost in 2000 steps of NOOP"
+    i = int(np.flatnonzero(terminated)[0])
+    # the episode's last stack is kept; the returned one is the next episode's first
+    assert info["final_obs"][i].shape == (4, 84, 84)
+    assert all(np.array_equal(obs[i][0], frame) for frame in obs[i])
+    envs.close()
+
+
+@pytest.mark.parametrize("num_envs", [0, -1, 1.5, True])
+def test_make_vector_env_rejects_a_bad_num_envs(num_envs):
+    from catch_env.wrappers import make_vector_env
+
+    with pytest.raises(ValueError, match="num_envs must be a positive integer"):
+        make_vector_env("Catch-v0", num_envs)
