@@ -335,7 +335,10 @@ class PhaseTimer:
         self.last = now
 
     def timed_env(self, env: gym.Env | gym.vector.VectorEnv) -> gym.Env | gym.vector.VectorEnv:
+        """Wrap the worker's env so that its steps count apart; the clock restarts here, so
+        that building the envs (16 emulators take seconds) is not counted as a phase."""
         timer = self
+        self.last = time.perf_counter()
         base = gym.vector.VectorWrapper if isinstance(env, gym.vector.VectorEnv) else gym.Wrapper
 
         class TimedStep(base):

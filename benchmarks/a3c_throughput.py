@@ -3,6 +3,7 @@
     python benchmarks/a3c_throughput.py [SCRIPT ...] [--seconds 30] [--rounds 1]
                                         [--num-workers N] [--no-baseline] [--env Catch-v0]
                                         [--envs-per-worker 1 [K ...]] [--precision fp32 [bf16]]
+                                        [--eval-episodes N]
 
 It runs each script's own training loop (evaluations included) for --seconds and reports the
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
@@ -194,13 +195,19 @@ def num_actions(a3c, env_id: str) -> int:
 
 
 def run_script(
-    a3c, env: str, num_workers: int, seconds: float, envs_per_worker: int, precision: str
+    a3c,
+    env: str,
+    num_workers: int,
+    seconds: float,
+    envs_per_worker: int,
+    precision: str,
+    eval_episodes: int | None = None,
 ) -> tuple[float, float]:
     """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers)."""
     with tempfile.TemporaryDirectory() as run_dir:
         args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir, env=env,
                         log_interval=max(5.0, seconds / 4), envs_per_worker=envs_per_worker,
-                        precision=precision)  # fmt: skip
+                        precision=precision, eval_episodes=eval_episodes)  # fmt: skip
         args.total_timesteps = 10**9  # the time limit ends the run
         cpu_before = children_cpu_seconds()
         summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
@@ -216,11 +223,17 @@ def main() -> None:
     parser.add_argument("--num-workers", type=int, default=None, help="default: a3c_ff's")
     parser.add_argument("--no-baseline", action="store_true", help="skip the baseline loop")
     parser.add_argument("--env", default="Catch-v0", help="Catch-v0 or an ALE id")
+    parser.add_argument("--eval-episodes", type=int, default=None,
+                        help="episodes of the step-0 evaluation, which runs beside the workers "
+                             "(default: the script's 50; an ALE game's 50 take a core for the "
+                             "whole measurement, so use 1 there)")  # fmt: skip
     parser.add_argument("--envs-per-worker", type=int, nargs="+", default=[1],
                         help="the K values to measure")  # fmt: skip
     parser.add_argument("--precision", nargs="+", default=["fp32"], choices=["fp32", "bf16"],
                         help="the precisions to measure")  # fmt: skip
     opts = parser.parse_args()
+    if opts.eval_episodes is not None and opts.eval_episodes < 1:
+        parser.error("--eval-episodes must be >= 1")
     if min(opts.envs_per_worker) < 1:
         parser.error("--envs-per-worker must be >= 1")
     if opts.seconds <= 0:
@@ -276,7 +289,15 @@ def main() -> None:
                 f"load average {os.getloadavg()[0]:.2f}; {name} K={k} {precision} ...", flush=True
             )
             measured[name, k, precision].append(
-                run_script(scripts[name], opts.env, num_workers, opts.seconds, k, precision)
+                run_script(
+                    scripts[name],
+                    opts.env,
+                    num_workers,
+                    opts.seconds,
+                    k,
+                    precision,
+                    opts.eval_episodes,
+                )  # fmt: skip
             )
 
     print(f"\n{'script':<12} {'K':>3} {'precision':>9} {'steps/s':>9} {'per CPU-s':>10} "
