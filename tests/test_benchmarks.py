@@ -26,14 +26,17 @@ def test_env_throughput_reports_every_configuration():
 
 
 @pytest.mark.slow
-def test_a3c_throughput_compares_a_variant_with_a3c_ff():
+def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting():
     result = run(
-        "benchmarks/a3c_throughput.py", "agents/a3c_lstm.py", "--seconds", "3", "--no-baseline"
-    )
+        "benchmarks/a3c_throughput.py", "agents/a3c_lstm.py", "--seconds", "3", "--no-baseline",
+        "--envs-per-worker", "1", "2", "--precision", "bf16",
+    )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    rows = dict(re.findall(r"^(a3c_\w+) +([\d,]+) +[\d,]+ +\d+% ", result.stdout, re.M))
-    assert set(rows) == {"a3c_ff", "a3c_lstm"}
-    assert all(int(sps.replace(",", "")) > 0 for sps in rows.values())
+    rows = re.findall(r"^(a3c_\w+) +(\d+) +(\w+) +([\d,]+) +[\d,]+ +\d+% ", result.stdout, re.M)
+    assert {row[:3] for row in rows} == {
+        (name, k, "bf16") for name in ("a3c_ff", "a3c_lstm") for k in ("1", "2")
+    }
+    assert all(int(row[3].replace(",", "")) > 0 for row in rows)
     assert re.search(r"a3c_lstm: [\d.]+ MFLOP per env step", result.stdout)
 
 
@@ -43,6 +46,8 @@ def test_a3c_throughput_compares_a_variant_with_a3c_ff():
         (["agents/no_such_script.py"], "no such script"),
         (["README.md"], "is not an A3C agent script"),
         (["--seconds", "0"], "--seconds must be > 0"),
+        (["--envs-per-worker", "0"], "--envs-per-worker must be >= 1"),
+        (["--env", "NoSuchEnv-v0"], "unknown --env"),
     ],
 )
 def test_a3c_throughput_rejects_bad_input(args, message):
