@@ -129,9 +129,10 @@ def resolve_defaults(args: Any) -> Any:
         args.grad_clip = 25.0 if args.grad_clip_mode == "global-norm" else 40.0
     if args.scale_obs is None:
         args.scale_obs = atari
+    envs_per_worker = getattr(args, "envs_per_worker", 1)  # tools may pass Args without it
     if getattr(args, "precision", "fp32") == "auto":
         # bf16 pays off only when the batch amortises autocast's weight casts (measured)
-        batched = getattr(args, "envs_per_worker", 1) > 1
+        batched = envs_per_worker > 1
         args.precision = "bf16" if batched and native_bf16() else "fp32"
     elif getattr(args, "precision", "fp32") == "bf16" and not native_bf16():
         print(
@@ -142,11 +143,7 @@ def resolve_defaults(args: Any) -> Any:
     checks = {
         "--total-timesteps": (args.total_timesteps, args.total_timesteps > 0, "> 0"),
         "--num-workers": (args.num_workers, args.num_workers >= 1, ">= 1"),
-        "--envs-per-worker": (
-            getattr(args, "envs_per_worker", 1),
-            getattr(args, "envs_per_worker", 1) >= 1,
-            ">= 1",
-        ),
+        "--envs-per-worker": (envs_per_worker, envs_per_worker >= 1, ">= 1"),
         "--learning-rate": (args.learning_rate, args.learning_rate >= 0, ">= 0"),
         "--t-max": (args.t_max, args.t_max >= 1, ">= 1"),
         "--gamma": (args.gamma, 0 <= args.gamma <= 1, "in [0, 1]"),

@@ -169,8 +169,6 @@ class FrameStackVectorEnv(VectorWrapper):
     step (as `copy=False` in Gymnasium's vector envs).
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
-
     def __init__(self, env: VectorEnv, frame_stack: int = 4) -> None:
         super().__init__(env)
         num_envs, frame_shape = env.num_envs, env.single_observation_space.shape
@@ -187,8 +185,12 @@ class FrameStackVectorEnv(VectorWrapper):
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
-        self._stack[:] = obs[:, None]
-        self._returns[:], self._lengths[:] = 0.0, 0
+        # options={"reset_mask": m} resets only the envs in m; the others keep their stacks
+        mask = np.ones(self.num_envs, dtype=bool)
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], dtype=bool)
+        self._stack[mask] = obs[mask][:, None]
+        self._returns[mask], self._lengths[mask] = 0.0, 0
         return self._stack, info
 
     def step(

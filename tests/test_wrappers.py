@@ -167,3 +167,17 @@ def test_make_vector_env_rejects_a_bad_num_envs(num_envs):
 
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
         make_vector_env("Catch-v0", num_envs)
+
+
+def test_catch_vector_env_reset_mask_resets_only_those_envs():
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("Catch-v0", 3)
+    envs.reset(seed=0)
+    for _ in range(5):
+        obs, *_ = envs.step(np.zeros(3, dtype=np.int64))
+    before = obs.copy()
+    obs, _ = envs.reset(options={"reset_mask": np.array([False, True, False])})
+    np.testing.assert_array_equal(obs[[0, 2]], before[[0, 2]])  # untouched stacks
+    assert all(np.array_equal(obs[1][0], frame) for frame in obs[1])  # a fresh, cleared stack
+    assert not np.array_equal(obs[1], before[1])
