@@ -258,7 +258,8 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
     params = list(model.parameters())
     # the frames of the rollout (t_max + 1, K, 4, 84, 84), each step's K frames channels-last
     # like the network's input (see ActorCritic), and any steps' rows a view of one batch
-    obs_buf = torch.zeros((args.t_max + 1, num_envs, 84, 84, 4), dtype=torch.uint8)
+    channels, height, width = envs.single_observation_space.shape
+    obs_buf = torch.zeros((args.t_max + 1, num_envs, height, width, channels), dtype=torch.uint8)
     obs_buf = obs_buf.permute(0, 1, 4, 2, 3)
     actions = np.zeros((args.t_max, num_envs), dtype=np.int64)
     rewards = np.zeros((args.t_max, num_envs), dtype=np.float32)
