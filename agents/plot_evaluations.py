@@ -5,7 +5,8 @@
 Each file is one line: the mean evaluation return against global steps, with +-1 standard
 error of that mean (std / sqrt(episodes)) shaded. A second x axis on top gives the wall time of
 the first file. --threshold draws a horizontal line (e.g. 0.9 for Catch) and prints the first
-evaluation that reaches it.
+evaluation that reaches it; --reference VALUE=LABEL draws a labelled dotted line, such as random
+play's score on an Atari game.
 """
 
 import argparse
@@ -40,8 +41,17 @@ def first_reaching(data: dict[str, list[float]], threshold: float) -> int | None
     return next((i for i, m in enumerate(data["mean_return"]) if m >= threshold), None)
 
 
+def parse_reference(text: str) -> tuple[float, str]:
+    """VALUE=LABEL (e.g. "1.7=random play") as (value, label); ValueError otherwise."""
+    value, sep, label = text.partition("=")
+    try:
+        return float(value), label.strip() if sep else ""
+    except ValueError:
+        raise ValueError(f"--reference {text!r} is not VALUE=LABEL, e.g. 1.7=random") from None
+
+
 def plot(paths: list[Path], labels: list[str], output: Path, threshold: float | None,
-         title: str | None) -> None:  # fmt: skip
+         title: str | None, references: list[tuple[float, str]] = ()) -> None:  # fmt: skip
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for path, label in zip(paths, labels, strict=True):
         data = read_evaluations(path)
@@ -58,6 +68,10 @@ def plot(paths: list[Path], labels: list[str], output: Path, threshold: float | 
                   f"{steps[-1]:,.0f}, {data['wall_time_s'][-1]:.0f} s")  # fmt: skip
     if threshold is not None:
         ax.axhline(threshold, color="gray", linestyle="--", linewidth=1)
+    for value, label in references:
+        ax.axhline(value, color="black", linestyle=":", linewidth=1)
+        ax.annotate(label, (0.01, value), xycoords=("axes fraction", "data"), fontsize=8,
+                    va="bottom")  # fmt: skip
     first = read_evaluations(paths[0])
     if len(first["global_step"]) > 1 and first["global_step"][-1] > first["global_step"][0]:
         # wall time axis of the first run, by linear interpolation between its evaluations
@@ -71,7 +85,7 @@ def plot(paths: list[Path], labels: list[str], output: Path, threshold: float | 
     ax.set_xlabel("global steps")
     ax.set_ylabel("evaluation mean return")
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
+    ax.legend(loc="best")
     if title:
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
@@ -86,12 +100,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--labels", nargs="+", help="one legend label per file")
     parser.add_argument("--threshold", type=float, help="draw this return and report reaching it")
     parser.add_argument("--title", help="the figure title")
+    parser.add_argument("--reference", action="append", default=[], metavar="VALUE=LABEL",
+                        help="a labelled dotted line, e.g. 1.7=random (repeatable)")  # fmt: skip
     opts = parser.parse_args(argv)
     labels = opts.labels or [p.parent.name for p in opts.csv]
     if len(labels) != len(opts.csv):
         parser.error(f"--labels needs {len(opts.csv)} labels, got {len(labels)}")
     try:
-        plot(opts.csv, labels, opts.output, opts.threshold, opts.title)
+        references = [parse_reference(r) for r in opts.reference]
+        plot(opts.csv, labels, opts.output, opts.threshold, opts.title, references)
     except (OSError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -329,6 +329,13 @@ def test_random_agent_example_catches_about_one_in_five() -> None:
     assert 0.12 < float(rate) < 0.3
 
 
+@pytest.mark.skipif(not play_module.importlib.util.find_spec("ale_py"), reason="needs ale-py")
+def test_random_agent_example_reports_an_atari_games_raw_score() -> None:
+    out = run_example(str(EXAMPLES / "random_agent.py"), "--env", "PongNoFrameskip-v4", "-n", "1")
+    score = float(re.search(r"PongNoFrameskip-v4: mean score (-?[\d.]+) \+- 0.00 over 1 ", out)[1])
+    assert -21 <= score <= -15  # a random paddle rarely scores against Pong's CPU player
+
+
 def test_vector_env_example_counts_episodes_with_next_step_autoreset() -> None:
     out = run_example(str(EXAMPLES / "vector_env.py"), "--num-envs", "8", "--steps", "100")
     # Each game ends at steps 15, 31, ..., 95 (15 played steps, then 1 reset step):

@@ -30,3 +30,16 @@ def test_plot_rejects_a_file_that_is_not_evaluations_csv(tmp_path):
     result = run(str(bad), "-o", str(tmp_path / "x.png"))
     assert result.returncode == 2
     assert "not an evaluations.csv" in result.stderr
+
+
+def test_plot_draws_references_and_rejects_a_malformed_one(tmp_path):
+    csv_path = tmp_path / "evaluations.csv"
+    csv_path.write_text(HEADER + "0,1.0,1.4,1.2,10\n500000,235.4,6.5,3.2,10\n")
+    png = tmp_path / "curve.png"
+    ok = run(str(csv_path), "-o", str(png), "--reference", "1.7=random", "--reference", "30")
+    assert ok.returncode == 0, ok.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bad = run(str(csv_path), "-o", str(tmp_path / "x.png"), "--reference", "random=1.7")
+    assert bad.returncode == 2
+    assert bad.stderr.startswith("error: --reference 'random=1.7' is not VALUE=LABEL")
+    assert bad.stderr.count("\n") == 1
