@@ -23,6 +23,7 @@ from a3c_runtime import (
     Shared,
     UsageError,  # noqa: F401  (the variants' networks raise it for bad flags)
     annealed_lr,
+    autocast_contexts,
     clip_gradients,
     default_num_workers,
     process_seed,
@@ -68,12 +69,13 @@ class Args:
     """the entropy factor beta"""
     vf_coef: float = 0.5
     """the value loss factor lambda_V (thesis 6.4.1); the value loss is vf_coef * 0.5 * (G - V)^2"""
-    precision: Literal["auto", "fp32", "bf16"] = "auto"
-    """the workers' network forward passes (acting and learning): fp32, or bf16 under CPU
-    autocast; weights, optimizer statistics, returns and the loss stay float32, and the evaluator
-    and --evaluate play in fp32. auto: bf16 with K > 1 envs per worker on a CPU with native
-    bf16, else fp32 (bf16 learned Catch as well as fp32, but at K = 1 it was slower:
-    results/precision_catch, results/throughput_batched)"""
+    precision: Literal["auto", "fp32", "bf16", "bf16-learn"] = "auto"
+    """the workers' network forward passes: fp32; bf16: acting and learning under bfloat16 CPU
+    autocast; bf16-learn: the learning pass (the forward over the rollout) in bf16, acting in
+    fp32. Weights, optimizer statistics, returns and the loss stay float32; the evaluator and
+    --evaluate play in fp32. auto, on a CPU with native bf16: bf16 with K > 1 envs per worker,
+    bf16-learn with K = 1 (a forward over one state is faster in fp32); fp32 elsewhere
+    (results/precision_catch, results/throughput_batched)"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
@@ -306,9 +308,9 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
     obs, _ = envs.reset(seed=seed)
     obs_buf[0].copy_(torch.from_numpy(obs))
     state = model.initial_state(num_envs)  # LSTM: one per env, carried across rollouts
-    # --precision bf16: the forward passes under autocast, their outputs cast to float32 for the
-    # sampling and the loss; backward and optimizer outside it. One context, entered per phase
-    precision = torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.precision == "bf16")
+    # --precision: the acting and the learning forward passes under bf16 autocast or not, their
+    # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
+    act_precision, learn_precision = autocast_contexts(args.precision)
 
     while shared.keep_running():
         global_step = shared.global_step()
@@ -323,7 +325,7 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
         rollout_state = tuple(s.clone() for s in state)
         # act with the synced local network for t_max steps (or until every episode ends)
         dones[:] = False
-        with torch.inference_mode(), precision:
+        with torch.inference_mode(), act_precision:
             for t in range(args.t_max):
                 log_probs, _, state = model(obs_buf[t, None], state)  # LSTM: T = 1, B = K
                 log_probs = log_probs[0]
@@ -363,7 +365,7 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
         episode_starts = torch.zeros((n + 1, num_envs), dtype=torch.bool)
         episode_starts[1:] = torch.from_numpy(dones[:n])
         rollout = obs_buf[: n + 1 if bootstrap else n]
-        with precision:
+        with learn_precision:
             log_probs, values, _ = model(rollout, rollout_state, episode_starts)
         # the loss in float32, over the n x K states flattened step-major (as obs_buf's rows)
         log_probs, values = log_probs.float().flatten(0, 1), values.float().flatten(0, 1)

@@ -130,14 +130,18 @@ def resolve_defaults(args: Any) -> Any:
     if args.scale_obs is None:
         args.scale_obs = atari
     envs_per_worker = getattr(args, "envs_per_worker", 1)  # tools may pass Args without it
-    if getattr(args, "precision", "fp32") == "auto":
-        # bf16 pays off only when the batch amortises autocast's weight casts (measured)
-        batched = envs_per_worker > 1
-        args.precision = "bf16" if batched and native_bf16() else "fp32"
-    elif getattr(args, "precision", "fp32") == "bf16" and not native_bf16():
+    precision = getattr(args, "precision", "fp32")  # tools may pass Args without it
+    if precision == "auto":
+        # bf16 pays off for batches of states, not for one (measured: results/throughput_batched):
+        # the learning pass is a batch, acting is one with K = 1
+        if not native_bf16():
+            args.precision = "fp32"
+        else:
+            args.precision = "bf16" if envs_per_worker > 1 else "bf16-learn"
+    elif precision in ("bf16", "bf16-learn") and not native_bf16():
         print(
-            "warning: --precision bf16 on a CPU without native bfloat16 (AVX512-BF16, AMX or "
-            "ARM BF16): it is emulated and likely slower than fp32",
+            f"warning: --precision {precision} on a CPU without native bfloat16 (AVX512-BF16, "
+            "AMX or ARM BF16): it is emulated and likely slower than fp32",
             file=sys.stderr,
         )
     checks = {
@@ -181,6 +185,17 @@ def probe_env(agent: Agent, env_id: str) -> int:
 # ----------------------------------------------------------------------------------------------
 # Library pieces of the loop: learning-rate schedule, gradient clipping, shared optimizers
 # ----------------------------------------------------------------------------------------------
+
+
+def autocast_contexts(precision: str) -> tuple[torch.autocast, torch.autocast]:
+    """The CPU autocast contexts of a worker's (acting, learning) forward passes for a resolved
+    --precision: fp32 neither, bf16 both, bf16-learn the learning pass only."""
+    if precision not in ("fp32", "bf16", "bf16-learn"):
+        raise ValueError(f"unresolved --precision {precision!r}: fp32, bf16 or bf16-learn")
+    return (
+        torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"),
+        torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision != "fp32"),
+    )
 
 
 def annealed_lr(args: Any, global_step: int) -> float:

@@ -61,7 +61,9 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="how long to run the loop")
     parser.add_argument("--env", default="Catch-v0", help="Catch-v0 or an ALE id")
     parser.add_argument("--envs-per-worker", type=int, default=1, help="K envs per worker")
-    parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
+    parser.add_argument(
+        "--precision", default="fp32", choices=["auto", "fp32", "bf16", "bf16-learn"]
+    )
     opts = parser.parse_args()
     if opts.seconds <= 0:
         parser.error("--seconds must be > 0")

@@ -2,18 +2,18 @@
 
     python benchmarks/a3c_throughput.py [SCRIPT ...] [--seconds 30] [--rounds 1]
                                         [--num-workers N] [--no-baseline] [--env Catch-v0]
-                                        [--envs-per-worker 1 [K ...]] [--precision fp32 [bf16]]
+                                        [--envs-per-worker 1 [K ...]] [--precision fp32 [...]]
                                         [--eval-episodes N]
 
 It runs each script's own training loop (evaluations included) for --seconds and reports the
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
 SCRIPTs (e.g. agents/a3c_lws.py) are compared with it: time per step relative to a3c_ff's, from
 the same run. Every script runs at every setting, each value of --envs-per-worker with each
---precision (K = 1 with fp32 is the thesis's algorithm). With --rounds R the scripts take turns R
-times and the means are reported, so that slow drifts of a shared machine's speed fall on all of
-them alike.
+--precision (K = 1 is the thesis's algorithm). With --rounds R the baseline and the scripts take
+turns R times and the means are reported, so that slow drifts of a shared machine's speed fall
+on all of them alike.
 
-For comparison it first runs a straightforward Hogwild loop of A3C FF for as long: load_state_dict
+For comparison it runs, in each round, a plain Hogwild loop of A3C FF for as long: load_state_dict
 to sync, a fresh tensor per step, torch.optim-style per-parameter clipping and RMSprop. For
 context it prints each network's FLOPs per env step (acting forward + the step's share of the
 rollout's forward and backward), this machine's single-thread fp32 matmul GFLOP/s, and the
@@ -43,6 +43,7 @@ import catch_env  # noqa: F401  (registers Catch-v0)
 
 AGENTS = Path(__file__).resolve().parents[1] / "agents"
 FF_SCRIPT = AGENTS / "a3c_ff.py"
+PRECISIONS = ("auto", "fp32", "bf16", "bf16-learn")  # --precision of the scripts
 sys.path.insert(0, str(AGENTS))  # the scripts import their sibling a3c_runtime
 import a3c_runtime  # noqa: E402
 
@@ -229,7 +230,7 @@ def main() -> None:
                              "whole measurement, so use 1 there)")  # fmt: skip
     parser.add_argument("--envs-per-worker", type=int, nargs="+", default=[1],
                         help="the K values to measure")  # fmt: skip
-    parser.add_argument("--precision", nargs="+", default=["fp32"], choices=["fp32", "bf16"],
+    parser.add_argument("--precision", nargs="+", default=["fp32"], choices=PRECISIONS,
                         help="the precisions to measure")  # fmt: skip
     opts = parser.parse_args()
     if opts.eval_episodes is not None and opts.eval_episodes < 1:
@@ -276,14 +277,14 @@ def main() -> None:
         print(f"{name}: {flops / 1e6:.1f} MFLOP per env step (acting forward + 1/t_max of the "
               f"rollout's forward and backward) -> bound {bounds[name]:,.0f} steps/s")  # fmt: skip
 
-    baseline = None
-    if not opts.no_baseline:
-        print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
-        baseline = run_baseline(a3c, opts.env, num_workers, opts.seconds, warmup=3.0)
-        print(f"baseline: {baseline[0]:,.0f} steps/s ({baseline[1]:,.0f} per {num_workers} "
-              f"CPU-seconds)")  # fmt: skip
+    baselines = []
     measured = {(name, *setting): [] for setting in settings for name in scripts}
     for _ in range(opts.rounds):
+        if not opts.no_baseline:  # every round, so that drifts of the host fall on it too
+            print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
+            baselines.append(run_baseline(a3c, opts.env, num_workers, opts.seconds, warmup=3.0))
+            print(f"baseline: {baselines[-1][0]:,.0f} steps/s ({baselines[-1][1]:,.0f} per "
+                  f"{num_workers} CPU-seconds)")  # fmt: skip
         for name, k, precision in measured:
             print(
                 f"load average {os.getloadavg()[0]:.2f}; {name} K={k} {precision} ...", flush=True
@@ -300,12 +301,16 @@ def main() -> None:
                 )  # fmt: skip
             )
 
-    print(f"\n{'script':<12} {'K':>3} {'precision':>9} {'steps/s':>9} {'per CPU-s':>10} "
+    baseline = np.mean(baselines, axis=0) if baselines else None
+    if len(baselines) > 1:
+        print(f"\nbaseline, mean of {len(baselines)} rounds: {baseline[0]:,.0f} steps/s "
+              f"(rounds: {', '.join(f'{b[0]:,.0f}' for b in baselines)})")  # fmt: skip
+    print(f"\n{'script':<12} {'K':>3} {'precision':>10} {'steps/s':>9} {'per CPU-s':>10} "
           f"{'of bound':>9} {'time/step vs a3c_ff':>20} {'vs baseline':>11}")  # fmt: skip
     for (name, k, precision), runs in measured.items():
         sps, per_cpu = np.mean(runs, axis=0)
         ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision], axis=0)
-        line = f"{name:<12} {k:>3} {precision:>9} {sps:>9,.0f} {per_cpu:>10,.0f} "
+        line = f"{name:<12} {k:>3} {precision:>10} {sps:>9,.0f} {per_cpu:>10,.0f} "
         line += f"{per_cpu / bounds[name]:>9.0%} {ff_sps / sps:>9.2f}x wall "
         line += f"{ff_per_cpu / per_cpu:>5.2f}x CPU"
         if baseline is not None:

@@ -1,5 +1,6 @@
-"""--precision fp32|bf16: bf16 runs the workers' forward passes under CPU autocast while the
-weights, optimizer statistics, returns and the loss stay float32."""
+"""--precision auto|fp32|bf16|bf16-learn: bf16 runs the workers' forward passes under CPU autocast
+(bf16-learn: only the learning pass) while the weights, optimizer statistics, returns and the
+loss stay float32."""
 
 import warnings
 
@@ -10,10 +11,11 @@ from conftest import SCRIPTS, TINY, load_script, read_evaluations, run_script
 from test_a3c_runtime import one_thread, shared_for, tiny_args  # noqa: F401  (one_thread: fixture)
 
 
+@pytest.mark.parametrize("precision", ["bf16", "bf16-learn"])
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_bf16_worker_learns_in_process_with_float32_weights(name, one_thread):  # noqa: F811
+def test_bf16_worker_learns_in_process_with_float32_weights(name, precision, one_thread):  # noqa: F811
     module = load_script(name)
-    args = tiny_args(module, total_timesteps=60, t_max=5, precision="bf16")
+    args = tiny_args(module, total_timesteps=60, t_max=5, precision=precision)
     shared = shared_for(module, args)
     before = [p.detach().clone() for p in shared.params]
     with warnings.catch_warnings():
@@ -56,6 +58,56 @@ def test_bf16_forward_outputs_cast_back_give_a_float32_loss(name):
     assert all(g.dtype == torch.float32 and torch.isfinite(g).all() for g in grads)
 
 
+@pytest.mark.parametrize(
+    ("precision", "acting", "learning"),
+    [("fp32", False, False), ("bf16", True, True), ("bf16-learn", False, True)],
+)
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_each_forward_pass_runs_in_its_precision(
+    name,
+    precision,
+    acting,
+    learning,
+    one_thread,  # noqa: F811
+    monkeypatch,
+):
+    """The worker's acting passes (inference mode) and learning passes (with autograd) are
+    under bf16 autocast exactly as --precision says."""
+    module = load_script(name)
+    args = tiny_args(module, total_timesteps=40, t_max=5, precision=precision)
+    shared = shared_for(module, args)
+    calls = []
+    forward = module.ActorCritic.forward
+
+    def recording_forward(self, *inputs, **kwargs):
+        calls.append((torch.is_inference_mode_enabled(), torch.is_autocast_enabled("cpu")))
+        return forward(self, *inputs, **kwargs)
+
+    monkeypatch.setattr(module.ActorCritic, "forward", recording_forward)
+    module.worker(0, shared, args)
+    acting_calls = {autocast for inference, autocast in calls if inference}
+    learning_calls = {autocast for inference, autocast in calls if not inference}
+    assert acting_calls == {acting} and learning_calls == {learning}, calls
+
+
+def test_autocast_contexts_need_a_resolved_precision():
+    with pytest.raises(ValueError, match="unresolved --precision 'auto'"):
+        runtime.autocast_contexts("auto")
+
+
+@pytest.mark.parametrize("k", [1, 4])
+def test_auto_precision_is_bf16_for_batches_where_the_cpu_has_it(k, monkeypatch, capsys):
+    a3c = load_script("a3c_ff")
+    monkeypatch.setattr(runtime, "native_bf16", lambda: True)
+    resolved = runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision
+    assert resolved == ("bf16-learn" if k == 1 else "bf16")  # one state acts faster in fp32
+    monkeypatch.setattr(runtime, "native_bf16", lambda: False)
+    assert runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision == "fp32"
+    for explicit in ("fp32", "bf16", "bf16-learn"):
+        assert runtime.resolve_defaults(a3c.Args(precision=explicit)).precision == explicit
+    assert capsys.readouterr().err.count("warning") == 2  # the two bf16 ones, emulated here
+
+
 def test_bf16_without_native_support_warns_in_one_line(monkeypatch, capsys):
     a3c = load_script("a3c_ff")
     monkeypatch.setattr(runtime, "native_bf16", lambda: False)
@@ -66,6 +118,9 @@ def test_bf16_without_native_support_warns_in_one_line(monkeypatch, capsys):
         runtime.resolve_defaults(a3c.Args(precision="bf16"))
     err = capsys.readouterr().err
     assert err.startswith("warning: --precision bf16") and err.count("\n") == 1, err
+    runtime.resolve_defaults(a3c.Args(precision="bf16-learn"))
+    err = capsys.readouterr().err
+    assert err.startswith("warning: --precision bf16-learn") and err.count("\n") == 1, err
     monkeypatch.setattr(runtime, "native_bf16", lambda: True)
     runtime.resolve_defaults(a3c.Args(precision="bf16"))
     assert capsys.readouterr().err == ""
