@@ -88,6 +88,10 @@ class Args:
     """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
+    rms_init: float = 0.0
+    """RMSprop's initial mean square ms: 0 as in the thesis's code; 1 as TensorFlow's
+    RMSPropOptimizer (OpenAI baselines' A2C, whose --optim-eps 1e-5 assumes it): from 0 with a
+    small eps the first updates are about 10 lr per weight, from 1 they start small"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
     """gradient clipping: per-tensor norm, per-value, global norm (thesis 6.3.1), or none"""
     grad_clip: float | None = None

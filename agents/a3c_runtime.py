@@ -144,6 +144,7 @@ def resolve_defaults(args: Any) -> Any:
             "AMX or ARM BF16): it is emulated and likely slower than fp32",
             file=sys.stderr,
         )
+    rms_init = getattr(args, "rms_init", 0.0)  # tools may pass Args without it
     checks = {
         "--total-timesteps": (args.total_timesteps, args.total_timesteps > 0, "> 0"),
         "--num-workers": (args.num_workers, args.num_workers >= 1, ">= 1"),
@@ -157,6 +158,7 @@ def resolve_defaults(args: Any) -> Any:
         "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
         "--adam-beta2": (args.adam_beta2, 0 <= args.adam_beta2 < 1, "in [0, 1)"),
         "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
+        "--rms-init": (rms_init, rms_init >= 0, ">= 0"),
         "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
         "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
         "--eval-episodes": (args.eval_episodes, args.eval_episodes >= 1, ">= 1"),
@@ -222,11 +224,12 @@ def clip_gradients(grads: list[torch.Tensor], mode: str, bound: float) -> float:
 
 class SharedRMSprop:
     """RMSprop with the mean square shared by all workers (thesis 2.2.3, 5.2.2):
-    ms <- rho * ms + (1 - rho) * g^2;  theta <- theta - lr * g / sqrt(ms + eps)."""
+    ms <- rho * ms + (1 - rho) * g^2;  theta <- theta - lr * g / sqrt(ms + eps), from
+    ms = `initial` (0 in the thesis's code; TensorFlow's RMSPropOptimizer starts at 1)."""
 
-    def __init__(self, params: list[torch.Tensor], decay: float, eps: float):
+    def __init__(self, params: list[torch.Tensor], decay: float, eps: float, initial: float = 0.0):
         self.params, self.decay, self.eps = params, decay, eps
-        self.square_avg = [torch.zeros_like(p).share_memory_() for p in params]
+        self.square_avg = [torch.full_like(p, initial).share_memory_() for p in params]
 
     @torch.no_grad()
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
@@ -285,7 +288,7 @@ class SharedAdam:
 def make_optimizer(params: list[torch.Tensor], args: Any) -> SharedRMSprop | SharedAdam:
     if args.optimizer == "adam":
         return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
-    return SharedRMSprop(params, args.rms_decay, args.optim_eps)
+    return SharedRMSprop(params, args.rms_decay, args.optim_eps, getattr(args, "rms_init", 0.0))
 
 
 # ----------------------------------------------------------------------------------------------

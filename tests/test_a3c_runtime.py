@@ -53,6 +53,20 @@ def test_shared_rmsprop_step():
     np.testing.assert_allclose(param.numpy(), [1.0 - 0.2 / math.sqrt(0.14), -1.0], rtol=1e-6)
 
 
+def test_shared_rmsprop_from_tensorflows_initial_mean_square():
+    """--rms-init 1 (TensorFlow's RMSPropOptimizer): with a small eps the first step stays
+    about lr * g instead of 10 lr per weight."""
+    param = torch.tensor([1.0, -1.0])
+    opt = runtime.SharedRMSprop([param], decay=0.99, eps=1e-5, initial=1.0)
+    opt.step([torch.tensor([2.0, 0.0])], lr=0.1)
+    # ms = 0.99 * 1 + 0.01 * g^2 = [1.03, 0.99]; theta -= 0.1 * g / sqrt(ms + 1e-5)
+    np.testing.assert_allclose(opt.square_avg[0].numpy(), [1.03, 0.99], rtol=1e-6)
+    np.testing.assert_allclose(param.numpy(), [1.0 - 0.2 / math.sqrt(1.03001), -1.0], rtol=1e-6)
+    zero_start = torch.tensor([1.0])
+    runtime.SharedRMSprop([zero_start], decay=0.99, eps=1e-5).step([torch.tensor([2.0])], lr=0.1)
+    assert zero_start.item() == pytest.approx(1.0 - 0.2 / math.sqrt(0.04001), abs=1e-6)  # 10 lr
+
+
 def test_shared_adam_step():
     param = torch.tensor([1.0])
     opt = runtime.SharedAdam([param], beta1=0.9, beta2=0.99, eps=0.1)
@@ -246,6 +260,7 @@ BAD_FLAGS = [
     (["--resume", "/nonexistent/checkpoint.pt"], "error: checkpoint '/nonexistent/checkpoint.pt' "),
     (["--evaluate", "/nonexistent/checkpoint.pt"], "error: checkpoint '/nonexistent/"),
     (["--grad-clip-mode", "sideways"], "norm"),
+    (["--rms-init", "-1"], "error: --rms-init must be >= 0 (got -1.0)"),
 ]
 
 
