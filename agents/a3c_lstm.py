@@ -49,10 +49,6 @@ class Args:
     """K, the envs each worker steps together: it acts on all K with one batched forward and
     learns from the K x t_max rollout in one update (batched actors inside each Hogwild worker,
     as in PAAC, Clemente et al. 2017); 1 is the thesis's algorithm"""
-    envs_per_worker: int = 1
-    """K, the envs each worker steps together: it acts on all K with one batched forward and
-    learns from the K x t_max rollout in one update (batched actors inside each Hogwild worker,
-    as in PAAC, Clemente et al. 2017); 1 is the thesis's algorithm"""
     time_limit: float | None = None
     """stop training after this many seconds of wall time, as if T_max was reached"""
 
