@@ -43,3 +43,21 @@ def test_catch_env_does_not_import_torch():
 def test_ruff_clean(command):
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_every_result_has_its_command():
+    """The standard: a result counts only with the command that made it."""
+    folders = [path for path in (ROOT / "results").iterdir() if path.is_dir()]
+    assert folders
+    missing = [path.name for path in folders if not (path / "COMMAND.txt").is_file()]
+    assert not missing, f"results folders without COMMAND.txt: {missing}"
+
+
+def test_readme_links_to_results_that_exist():
+    """Every image and every `results/...` path the README names is in the repository."""
+    readme = (ROOT / "README.md").read_text()
+    images = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", readme)
+    paths = re.findall(r"`(results/[\w./-]+)", readme)
+    assert images and paths
+    missing = [path for path in images + paths if not (ROOT / path.rstrip("/.")).exists()]
+    assert not missing, f"the README names files that are not here: {missing}"
