@@ -43,3 +43,21 @@ def test_plot_draws_references_and_rejects_a_malformed_one(tmp_path):
     assert bad.returncode == 2
     assert bad.stderr.startswith("error: --reference 'random=1.7' is not VALUE=LABEL")
     assert bad.stderr.count("\n") == 1
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """Width and height from a PNG's IHDR chunk."""
+    header = path.read_bytes()[16:24]
+    return int.from_bytes(header[:4], "big"), int.from_bytes(header[4:], "big")
+
+
+def test_wall_time_panel_draws_a_second_panel(tmp_path):
+    fast, slow = tmp_path / "fast.csv", tmp_path / "slow.csv"
+    fast.write_text(HEADER + "0,1.0,1.4,1.2,10\n500000,235.4,6.5,3.2,10\n")
+    slow.write_text(HEADER + "0,1.0,1.2,1.0,10\n500000,470.9,4.5,3.0,10\n")
+    one, two = tmp_path / "one.png", tmp_path / "two.png"
+    assert run(str(fast), str(slow), "-o", str(one)).returncode == 0
+    result = run(str(fast), str(slow), "-o", str(two), "--wall-time", "--title", "t")
+    assert result.returncode == 0, result.stderr
+    (width_one, height_one), (width_two, height_two) = png_size(one), png_size(two)
+    assert height_two == height_one and width_two > 1.4 * width_one
