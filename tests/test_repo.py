@@ -54,10 +54,15 @@ def test_every_result_has_its_command():
 
 
 def test_readme_links_to_results_that_exist():
-    """Every image and every `results/...` path the README names is in the repository."""
+    """Every image and every `results/...` path the README names is in the repository (a shell
+    brace such as results/x_{a,b}/ names each of its expansions)."""
     readme = (ROOT / "README.md").read_text()
     images = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", readme)
-    paths = re.findall(r"`(results/[\w./-]+)", readme)
+    paths = []
+    for path in re.findall(r"`(results/[\w./{},-]+)", readme):
+        brace = re.search(r"\{([^}]*)\}", path)
+        alternatives = brace.group(1).split(",") if brace else [""]
+        paths += [path.replace(brace.group(0), a) if brace else path for a in alternatives]
     assert images and paths
     missing = [path for path in images + paths if not (ROOT / path.rstrip("/.")).exists()]
     assert not missing, f"the README names files that are not here: {missing}"
