@@ -31,6 +31,7 @@ A script gives it an `Agent` and calls `run(agent)` from its `main`:
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
@@ -39,7 +40,7 @@ import signal
 import sys
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -198,6 +199,185 @@ def autocast_contexts(precision: str) -> tuple[torch.autocast, torch.autocast]:
         torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"),
         torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision != "fp32"),
     )
+
+
+class ActivationReplay:
+    """Reuse the acting passes' layer outputs in the learning pass over the same rollout.
+
+    Acting and learning run the same synced network theta' on the same states (Algorithm 1), so
+    every Conv2d and Linear output of the learning forward was already computed while acting,
+    one step at a time. `ActivationReplay(model, precision)` turns the model's Conv2d and Linear
+    layers into recording ones, in place (same parameters, names and state_dict): forwards inside
+    `recording()` keep each layer's output, and the learning forward inside `replaying()` takes
+    them back instead of computing them again; only rows that acting never saw (the bootstrap
+    state s_n) are computed. The backward is each layer's own (aten.convolution_backward; two
+    matmuls for Linear), so the gradients are those of recomputing the forward, up to float
+    rounding: the same algorithm with about a third of the learning pass's FLOPs saved.
+    Everything else in a network (activations, LSTM cells, softmaxes, prototypes) is recomputed
+    from the replayed outputs as before. Outside the two contexts the layers are plain.
+
+    The learning forward must call each layer on the rollout's rows in acting order (step-major,
+    as the workers flatten obs_buf), once per forward; a forward that is not a step of the
+    rollout (V(s_last) of a truncated episode) runs inside `paused()`. Leaving `replaying()`
+    checks that every recorded row was taken back. With --precision bf16-learn acting is fp32 and
+    learning bf16, so there is nothing to reuse and the layers stay plain."""
+
+    def __init__(self, model: nn.Module, precision: str) -> None:
+        self.mode: str | None = None  # "record", "replay" or None (plain layers)
+        self.enabled = True
+        self.layers: list[_ReplayedConv2d | _ReplayedLinear] = []
+        for layer in model.modules():
+            replayed = {nn.Conv2d: _ReplayedConv2d, nn.Linear: _ReplayedLinear}.get(type(layer))
+            if replayed is _ReplayedConv2d and (
+                not isinstance(layer.padding, tuple) or layer.padding_mode != "zeros"
+            ):
+                replayed = None  # "same"/"valid" or non-zero padding: computed as before
+            if replayed is not None:
+                layer.__class__ = replayed  # a subclass: only forward changes
+                layer.replay, layer.recorded, layer.count, layer.cursor = self, None, 0, 0
+                self.layers.append(layer)
+
+    @contextlib.contextmanager
+    def recording(self) -> Iterator[None]:
+        """The acting forwards of one rollout: each layer keeps its outputs."""
+        for layer in self.layers:
+            layer.count = 0
+        self.mode = "record" if self.enabled else None
+        try:
+            yield
+        finally:
+            self.mode = None
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """A forward inside recording() that is not a step of the rollout."""
+        mode, self.mode = self.mode, None
+        try:
+            yield
+        finally:
+            self.mode = mode
+
+    @contextlib.contextmanager
+    def replaying(self) -> Iterator[None]:
+        """The learning forward over the rollout: the recorded outputs come back in order."""
+        for layer in self.layers:
+            layer.cursor = 0
+        self.mode = "replay" if self.enabled else None
+        try:
+            yield
+            for layer in self.layers:
+                if layer.cursor != layer.count:
+                    raise RuntimeError(
+                        f"ActivationReplay: {layer.count - layer.cursor} recorded rows of "
+                        f"{layer} were not replayed; the learning forward must take the acting "
+                        "rows in order"
+                    )
+        finally:
+            self.mode = None
+            for layer in self.layers:
+                layer.count = 0
+
+
+class _Recording:
+    """What ActivationReplay adds to a Conv2d or Linear: the outputs' rows (a Linear's leading
+    dimensions flattened), kept in a buffer that doubles when full and lives across rollouts."""
+
+    replay: ActivationReplay
+    recorded: torch.Tensor | None
+    count: int  # rows recorded in this rollout
+    cursor: int  # rows taken back by the replay so far
+
+    def compute(self, x: torch.Tensor) -> torch.Tensor:
+        """The layer's own forward."""
+        return super().forward(x)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        mode = self.replay.mode
+        if mode is None:
+            return super().forward(x)
+        if mode == "replay":
+            return _Replay.apply(x, self.weight, self.bias, self)
+        y = super().forward(x)
+        rows = y if y.dim() in (2, 4) else y.reshape(-1, y.shape[-1])
+        end = self.count + len(rows)
+        if self.recorded is None or end > len(self.recorded):
+            self.grow(rows, end)
+        self.recorded[self.count : end] = rows  # a copy: y may get an in-place activation
+        self.count = end
+        return y
+
+    def grow(self, rows: torch.Tensor, end: int) -> None:
+        old = self.recorded
+        capacity = max(end, 2 * len(old)) if old is not None else end
+        self.recorded = torch.empty_like(rows[:1]).expand(capacity, *rows.shape[1:]).clone()
+        if old is not None:
+            self.recorded[: self.count] = old[: self.count]
+
+    def take(self, rows: int) -> torch.Tensor | None:
+        """The next `rows` recorded rows (fewer where the recording ends; None if none)."""
+        if self.cursor >= self.count:
+            return None
+        taken = self.recorded[self.cursor : min(self.cursor + rows, self.count)]
+        self.cursor += len(taken)
+        return taken
+
+
+class _ReplayedConv2d(_Recording, nn.Conv2d):
+    pass
+
+
+class _ReplayedLinear(_Recording, nn.Linear):
+    pass
+
+
+class _Replay(torch.autograd.Function):
+    """y = layer(x) from the recorded rows (computing only the rest); backward as the layer's."""
+
+    @staticmethod
+    def forward(ctx, x, weight, bias, layer):  # noqa: ANN001, ANN205 (autograd's signature)
+        conv = isinstance(layer, nn.Conv2d)
+        rows = x.shape[0] if conv else x.numel() // x.shape[-1]
+        taken = layer.take(rows)
+        done = 0 if taken is None else len(taken)
+        if done < rows:  # rows acting never saw: computed here, in the recorded precision
+            rest = layer.compute(x[done:] if conv else x.reshape(rows, -1)[done:])
+            y = rest if taken is None else torch.cat([taken, rest.to(taken.dtype)])
+        else:
+            y = taken.clone()  # a fresh tensor: the caller may modify it in place
+        ctx.save_for_backward(x, weight)
+        ctx.layer, ctx.has_bias = layer, bias is not None
+        # the backward's precision: the learning pass's (bf16 under autocast), as autocast's is
+        autocast = torch.is_autocast_enabled("cpu")
+        ctx.dtype = torch.get_autocast_dtype("cpu") if autocast else y.dtype
+        if conv or x.dim() == 2:
+            return y
+        return y.view(*x.shape[:-1], y.shape[-1]).clone()  # autograd forbids returning a view
+
+    @staticmethod
+    def backward(ctx, grad):  # noqa: ANN001, ANN205
+        x, weight = ctx.saved_tensors
+        layer = ctx.layer
+        need_x, need_w, need_b = ctx.needs_input_grad[:3]
+        need_b = need_b and ctx.has_bias
+        dtype = ctx.dtype
+        grad, xc, wc = grad.to(dtype), x.to(dtype), weight.to(dtype)
+        if isinstance(layer, nn.Conv2d):
+            grad_x, grad_w, grad_b = torch.ops.aten.convolution_backward(
+                grad, xc, wc, [wc.shape[0]] if ctx.has_bias else None,
+                list(layer.stride), list(layer.padding), list(layer.dilation), False, [0, 0],
+                layer.groups, [need_x, need_w, need_b],
+            )  # fmt: skip
+        else:
+            grad2, x2 = grad.reshape(-1, grad.shape[-1]), xc.reshape(-1, xc.shape[-1])
+            grad_x = (grad2 @ wc).view(x.shape) if need_x else None
+            grad_w = grad2.t() @ x2 if need_w else None
+            grad_b = grad2.sum(0) if need_b else None
+        return (
+            None if grad_x is None else grad_x.to(x.dtype),
+            None if grad_w is None else grad_w.to(weight.dtype),
+            None if grad_b is None else grad_b.to(weight.dtype),
+            None,
+        )
 
 
 def annealed_lr(args: Any, global_step: int) -> float:

@@ -18,6 +18,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 from a3c_runtime import (
+    ActivationReplay,
     Agent,
     PhaseTimer,
     Shared,
@@ -66,12 +67,12 @@ class Args:
     vf_coef: float = 0.5
     """the value loss factor lambda_V (thesis 6.4.1); the value loss is vf_coef * 0.5 * (G - V)^2"""
     precision: Literal["auto", "fp32", "bf16", "bf16-learn"] = "auto"
-    """the workers' network forward passes: fp32; bf16: acting and learning under bfloat16 CPU
-    autocast; bf16-learn: the learning pass (the forward over the rollout) in bf16, acting in
-    fp32. Weights, optimizer statistics, returns and the loss stay float32; the evaluator and
-    --evaluate play in fp32. auto, on a CPU with native bf16: bf16 with K > 1 envs per worker,
-    bf16-learn with K = 1 (a forward over one state is faster in fp32); fp32 elsewhere
-    (results/precision_catch, results/throughput_batched)"""
+    """the workers' network passes: fp32; bf16: acting and learning under bfloat16 CPU autocast;
+    bf16-learn: acting (and so the forward values the loss replays) in fp32, the learning pass's
+    gradients in bf16. Weights, optimizer statistics, returns and the loss stay float32; the
+    evaluator and --evaluate play in fp32. auto, on a CPU with native bf16: bf16 with K > 1 envs
+    per worker, bf16-learn with K = 1 (a forward over one state is faster in fp32); fp32
+    elsewhere (results/precision_catch, results/throughput_batched)"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
@@ -342,6 +343,9 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
     # --precision: the acting and the learning forward passes under bf16 autocast or not, their
     # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
     act_precision, learn_precision = autocast_contexts(args.precision)
+    # the learning forward takes back the conv and linear outputs that acting computed (same
+    # theta', same states) instead of computing them again
+    replay = ActivationReplay(model, args.precision)
 
     while shared.keep_running():
         global_step = shared.global_step()
@@ -353,7 +357,7 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
             timer.lap("sync")
         # act with the synced local network for t_max steps (or until every episode ends)
         dones[:] = False
-        with torch.inference_mode(), act_precision:
+        with torch.inference_mode(), act_precision, replay.recording():
             for t in range(args.t_max):
                 log_probs, _ = model(obs_buf[t])
                 action = sample_actions(log_probs.float().exp().numpy(), rng.random(num_envs))
@@ -372,7 +376,8 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
                     cut = truncated & ~terminated  # a time limit: bootstrap from V(s_last)
                     if cut.any():
                         last_obs = torch.from_numpy(np.stack(info["final_obs"][cut]))
-                        done_values[t, cut] = model(last_obs)[1].float().numpy()
+                        with replay.paused():  # not a step of the rollout
+                            done_values[t, cut] = model(last_obs)[1].float().numpy()
                     if ended.all():
                         break
         if timer is not None:
@@ -381,7 +386,7 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
         # one batched forward/backward over the n x K states; row n gives V(s_n) to bootstrap
         # from, unless every episode has ended there
         bootstrap = not dones[n - 1].all()
-        with learn_precision:
+        with learn_precision, replay.replaying():
             log_probs, values = model(obs_buf[: n + 1 if bootstrap else n].flatten(0, 1))
         log_probs, values = log_probs.float(), values.float()  # the loss in float32
         bootstrap_values = values[n * num_envs :].detach().numpy() if bootstrap else 0.0

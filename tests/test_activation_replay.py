@@ -1,0 +1,168 @@
+"""ActivationReplay: the learning forward over a rollout takes back the Conv2d and Linear outputs
+that acting computed with the same synced network, instead of computing them again; its
+gradients are those of recomputing (agents/a3c_runtime.py)."""
+
+import copy
+from contextlib import nullcontext
+
+import a3c_runtime as runtime
+import pytest
+import torch
+import torch.nn as nn
+from conftest import SCRIPTS, load_script
+from test_a3c_runtime import one_thread, shared_for, tiny_args  # noqa: F401  (one_thread: fixture)
+
+# the relative error allowed in every gradient, replayed against recomputed in the same
+# precision: fp32 differs by float rounding only, bf16 by the kernels' batch sizes. bf16-learn
+# replays the fp32 activations of acting where recomputing makes bf16 ones, so it is held to
+# fp32's recomputation, as near as bf16 gradients get (recomputing in bf16 strays 4-9%); a
+# replay of the wrong rows is off by O(1)
+TOLERANCE = {"fp32": 1e-4, "bf16": 2e-2, "bf16-learn": 0.1}
+# a3c_ss: the spatial softmax ignores a constant per map, so those biases get no gradient
+NO_GRADIENT = {"a3c_ss": {"torso.2.bias"}}
+
+
+def test_a_linear_layer_replays_what_acting_recorded_and_backpropagates_by_hand():
+    """y = W x + b: the replay returns the recorded y, not one computed with the layer's current
+    weights, and its backward gives dL/dW = g^T x, dL/db = sum g, dL/dx = g W by hand."""
+    layer = nn.Linear(2, 2)
+    with torch.no_grad():
+        layer.weight.copy_(torch.tensor([[1.0, 2.0], [3.0, 4.0]]))
+        layer.bias.copy_(torch.tensor([0.5, -0.5]))
+    replay = runtime.ActivationReplay(layer, "fp32")
+    x = torch.tensor([[1.0, -1.0], [2.0, 0.5]])
+    with torch.inference_mode(), replay.recording():
+        for row in x:
+            layer(row[None])  # acting: one state per step
+    with torch.no_grad():
+        layer.weight.add_(100.0)  # a replay would now differ from a recomputation
+    inputs = x.clone().requires_grad_()
+    with replay.replaying():
+        y = layer(inputs)
+    torch.testing.assert_close(y, torch.tensor([[-0.5, -1.5], [3.5, 7.5]]))  # W x + b recorded
+    g = torch.tensor([[1.0, 0.0], [0.0, 2.0]])
+    grad_x, grad_w, grad_b = torch.autograd.grad(y, (inputs, layer.weight, layer.bias), g)
+    torch.testing.assert_close(grad_w, torch.tensor([[1.0, -1.0], [4.0, 1.0]]))  # g^T x
+    torch.testing.assert_close(grad_b, torch.tensor([1.0, 2.0]))
+    torch.testing.assert_close(grad_x, torch.tensor([[101.0, 102.0], [206.0, 208.0]]))  # g W
+
+
+def test_rows_acting_never_saw_are_computed_and_paused_forwards_are_not_recorded():
+    torch.manual_seed(0)
+    layer = nn.Linear(3, 2)
+    replay = runtime.ActivationReplay(layer, "fp32")
+    x = torch.randn(3, 3)
+    with torch.inference_mode(), replay.recording():
+        layer(x[:1])
+        with replay.paused():
+            layer(torch.randn(5, 3))  # e.g. V(s_last) of a truncated episode
+        layer(x[1:2])
+    assert layer.count == 2
+    with replay.replaying():
+        y = layer(x)  # row 2 (the bootstrap state) was not recorded
+    torch.testing.assert_close(y, nn.functional.linear(x, layer.weight, layer.bias))
+
+
+def test_a_replay_that_leaves_recorded_rows_is_an_error():
+    layer = nn.Linear(3, 2)
+    replay = runtime.ActivationReplay(layer, "fp32")
+    with torch.inference_mode(), replay.recording():
+        layer(torch.randn(4, 3))
+    with (
+        pytest.raises(RuntimeError, match="1 recorded rows .* were not replayed"),
+        replay.replaying(),
+    ):
+        layer(torch.randn(3, 3))
+    assert replay.mode is None and layer.count == 0
+
+
+def test_the_layers_stay_what_they_were():
+    """Same parameters, names and state_dict; outside the two contexts a plain forward."""
+    module = load_script("a3c_ff")
+    torch.manual_seed(0)
+    model = module.ActorCritic(3, tiny_args(module))
+    plain = copy.deepcopy(model)
+    replay = runtime.ActivationReplay(model, "fp32")
+    assert len(replay.layers) == 5  # 2 convs, the FC layer, the two heads
+    assert all(isinstance(layer, (nn.Conv2d, nn.Linear)) for layer in replay.layers)
+    assert list(model.state_dict()) == list(plain.state_dict())
+    obs = torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8)
+    torch.testing.assert_close(model(obs), plain(obs))
+
+
+@pytest.mark.parametrize("precision", ["fp32", "bf16", "bf16-learn"])
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread):  # noqa: F811
+    """A worker's rollout of T = 3 steps of K = 2 envs, acted one step at a time, then the
+    learning pass over the T + 1 states (the last one a bootstrap state acting never saw): the
+    replaying network's values and gradients match the same network's recomputation (see
+    TOLERANCE)."""
+    module = load_script(name)
+    args = tiny_args(module, precision=precision)
+    torch.manual_seed(1)
+    plain = module.AGENT.build_network(3, args)
+    model = copy.deepcopy(plain)
+    replay = runtime.ActivationReplay(model, precision)
+    act, learn = runtime.autocast_contexts(precision)
+    obs = torch.randint(0, 256, (4, 2, 4, 84, 84), dtype=torch.uint8)
+    lstm = name == "a3c_lstm"
+    state = model.initial_state(2) if lstm else None
+    with torch.inference_mode(), act, replay.recording():
+        for t in range(3):
+            if lstm:
+                state = model(obs[t, None], state)[2]
+            else:
+                model(obs[t])
+
+    def loss_and_grads(network, context, learn=learn):
+        with learn, context:
+            if lstm:
+                log_probs, values, _ = network(obs, network.initial_state(2))
+                log_probs, values = log_probs.flatten(0, 1), values.flatten(0, 1)
+            else:
+                log_probs, values = network(obs.flatten(0, 1))
+        log_probs, values = log_probs.float(), values.float()
+        returns = torch.linspace(-1, 1, 6)
+        loss = module.a3c_loss(log_probs[:6], torch.tensor([0, 1, 2, 2, 1, 0]), values[:6],
+                               returns, args.ent_coef, args.vf_coef)[0]  # fmt: skip
+        params = [p for p in network.parameters() if p.requires_grad]
+        return values, torch.autograd.grad(loss, params, allow_unused=True)
+
+    reference = runtime.autocast_contexts("fp32" if precision == "bf16-learn" else precision)[1]
+    plain_values, plain_grads = loss_and_grads(plain, nullcontext(), reference)
+    values, grads = loss_and_grads(model, replay.replaying())
+    tolerance = TOLERANCE[precision]
+    torch.testing.assert_close(values, plain_values, rtol=tolerance, atol=tolerance)
+    names = [n for n, p in plain.named_parameters() if p.requires_grad]
+    for key, grad, plain_grad in zip(names, grads, plain_grads, strict=True):
+        if plain_grad is None or key in NO_GRADIENT.get(name, ()):
+            assert grad is None or grad.abs().max() < 1e-4, key
+            continue
+        assert grad.dtype == torch.float32, key
+        error = (grad - plain_grad).norm() / plain_grad.norm().clamp_min(1e-12)
+        assert error < tolerance, f"{key}: relative error {error:.2e}"
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_the_workers_learning_pass_computes_no_recorded_layer_again(name, one_thread):  # noqa: F811
+    """In each script's worker, the learning forwards compute Conv2d outputs only for states
+    that acting did not see: with Catch's 15-step episodes and t_max 20 every rollout ends with
+    its episode, so none at all, while acting computes one row per step."""
+    module = load_script(name)
+    args = tiny_args(module, total_timesteps=45, t_max=20, precision="fp32")
+    shared = shared_for(module, args)
+    rows = {True: 0, False: 0}  # by inference mode: acting, learning
+    forward = nn.Conv2d.forward
+
+    def counting_forward(self, x):
+        rows[torch.is_inference_mode_enabled()] += x.shape[0]
+        return forward(self, x)
+
+    nn.Conv2d.forward = counting_forward
+    try:
+        module.worker(0, shared, args)
+    finally:
+        nn.Conv2d.forward = forward
+    convs = sum(isinstance(m, nn.Conv2d) for m in shared.model.modules())
+    assert shared.global_step() == 45 and shared.stats[0, 3] == 3  # 3 updates of 15 states
+    assert rows == {True: 45 * convs, False: 0}
