@@ -206,7 +206,7 @@ class ActivationReplay:
 
     Acting and learning run the same synced network theta' on the same states (Algorithm 1), so
     every Conv2d and Linear output of the learning forward was already computed while acting,
-    one step at a time. `ActivationReplay(model, precision)` turns the model's Conv2d and Linear
+    one step at a time. `ActivationReplay(model)` turns the model's Conv2d and Linear
     layers into recording ones, in place (same parameters, names and state_dict): forwards inside
     `recording()` keep each layer's output, and the learning forward inside `replaying()` takes
     them back instead of computing them again; only rows that acting never saw (the bootstrap
@@ -219,12 +219,15 @@ class ActivationReplay:
     The learning forward must call each layer on the rollout's rows in acting order (step-major,
     as the workers flatten obs_buf), once per forward; a forward that is not a step of the
     rollout (V(s_last) of a truncated episode) runs inside `paused()`. Leaving `replaying()`
-    checks that every recorded row was taken back. With --precision bf16-learn acting is fp32 and
-    learning bf16, so there is nothing to reuse and the layers stay plain."""
+    checks that every recorded row was taken back. Under --precision bf16-learn the replayed
+    outputs are acting's fp32 ones and the backward runs in bf16."""
 
-    def __init__(self, model: nn.Module, precision: str) -> None:
+    # False makes the contexts no-ops, every layer plain: benchmarks/a3c_throughput.py --replay
+    # off sets it (before the workers fork) to measure what the replay saves
+    enabled = True
+
+    def __init__(self, model: nn.Module) -> None:
         self.mode: str | None = None  # "record", "replay" or None (plain layers)
-        self.enabled = True
         self.layers: list[_ReplayedConv2d | _ReplayedLinear] = []
         for layer in model.modules():
             replayed = {nn.Conv2d: _ReplayedConv2d, nn.Linear: _ReplayedLinear}.get(type(layer))

@@ -345,7 +345,7 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
     act_precision, learn_precision = autocast_contexts(args.precision)
     # the learning forward takes back the conv and linear outputs that acting computed (same
     # theta', same states) instead of computing them again
-    replay = ActivationReplay(model, args.precision)
+    replay = ActivationReplay(model)
 
     while shared.keep_running():
         global_step = shared.global_step()

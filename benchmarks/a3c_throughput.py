@@ -3,15 +3,16 @@
     python benchmarks/a3c_throughput.py [SCRIPT ...] [--seconds 30] [--rounds 1]
                                         [--num-workers N] [--no-baseline] [--env Catch-v0]
                                         [--envs-per-worker 1 [K ...]] [--precision fp32 [...]]
-                                        [--eval-episodes N]
+                                        [--replay on [off]] [--eval-episodes N]
 
 It runs each script's own training loop (evaluations included) for --seconds and reports the
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
 SCRIPTs (e.g. agents/a3c_lws.py) are compared with it: time per step relative to a3c_ff's, from
 the same run. Every script runs at every setting, each value of --envs-per-worker with each
---precision (K = 1 is the thesis's algorithm). With --rounds R the baseline and the scripts take
-turns R times and the means are reported, so that slow drifts of a shared machine's speed fall
-on all of them alike.
+--precision (K = 1 is the thesis's algorithm) and each --replay: off turns the scripts'
+ActivationReplay off (the learning pass recomputes the forward), to measure what it saves.
+With --rounds R the baseline and the scripts take turns R times and the means are reported, so
+that slow drifts of a shared machine's speed fall on all of them alike.
 
 For comparison it runs, in each round, a plain Hogwild loop of A3C FF for as long: load_state_dict
 to sync, a fresh tensor per step, torch.optim-style per-parameter clipping and RMSprop. For
@@ -203,8 +204,10 @@ def run_script(
     envs_per_worker: int,
     precision: str,
     eval_episodes: int | None = None,
+    replay: bool = True,
 ) -> tuple[float, float]:
     """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers)."""
+    a3c_runtime.ActivationReplay.enabled = replay  # the forked workers inherit it
     with tempfile.TemporaryDirectory() as run_dir:
         args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir, env=env,
                         log_interval=max(5.0, seconds / 4), envs_per_worker=envs_per_worker,
@@ -212,6 +215,7 @@ def run_script(
         args.total_timesteps = 10**9  # the time limit ends the run
         cpu_before = children_cpu_seconds()
         summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
+    a3c_runtime.ActivationReplay.enabled = True
     per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
     return summary["sps"], per_cpu
 
@@ -232,6 +236,8 @@ def main() -> None:
                         help="the K values to measure")  # fmt: skip
     parser.add_argument("--precision", nargs="+", default=["fp32"], choices=PRECISIONS,
                         help="the precisions to measure")  # fmt: skip
+    parser.add_argument("--replay", nargs="+", default=["on"], choices=["on", "off"],
+                        help="ActivationReplay on (as the scripts run) and/or off")  # fmt: skip
     opts = parser.parse_args()
     if opts.eval_episodes is not None and opts.eval_episodes < 1:
         parser.error("--eval-episodes must be >= 1")
@@ -256,7 +262,10 @@ def main() -> None:
     except a3c_runtime.UsageError as e:
         parser.error(str(e))
     settings = [
-        (k, p) for k in dict.fromkeys(opts.envs_per_worker) for p in dict.fromkeys(opts.precision)
+        (k, p, r)
+        for k in dict.fromkeys(opts.envs_per_worker)
+        for p in dict.fromkeys(opts.precision)
+        for r in dict.fromkeys(opts.replay)
     ]
 
     cpu = platform.processor() or platform.machine()
@@ -285,11 +294,13 @@ def main() -> None:
             baselines.append(run_baseline(a3c, opts.env, num_workers, opts.seconds, warmup=3.0))
             print(f"baseline: {baselines[-1][0]:,.0f} steps/s ({baselines[-1][1]:,.0f} per "
                   f"{num_workers} CPU-seconds)")  # fmt: skip
-        for name, k, precision in measured:
+        for name, k, precision, replay in measured:
             print(
-                f"load average {os.getloadavg()[0]:.2f}; {name} K={k} {precision} ...", flush=True
+                f"load average {os.getloadavg()[0]:.2f}; {name} K={k} {precision} replay "
+                f"{replay} ...",
+                flush=True,
             )
-            measured[name, k, precision].append(
+            measured[name, k, precision, replay].append(
                 run_script(
                     scripts[name],
                     opts.env,
@@ -298,6 +309,7 @@ def main() -> None:
                     k,
                     precision,
                     opts.eval_episodes,
+                    replay == "on",
                 )  # fmt: skip
             )
 
@@ -305,22 +317,24 @@ def main() -> None:
     if len(baselines) > 1:
         print(f"\nbaseline, mean of {len(baselines)} rounds: {baseline[0]:,.0f} steps/s "
               f"(rounds: {', '.join(f'{b[0]:,.0f}' for b in baselines)})")  # fmt: skip
-    print(f"\n{'script':<12} {'K':>3} {'precision':>10} {'steps/s':>9} {'per CPU-s':>10} "
-          f"{'of bound':>9} {'time/step vs a3c_ff':>20} {'vs baseline':>11}")  # fmt: skip
-    for (name, k, precision), runs in measured.items():
+    print(f"\n{'script':<12} {'K':>3} {'precision':>10} {'replay':>6} {'steps/s':>9} "
+          f"{'per CPU-s':>10} {'of bound':>9} {'time/step vs a3c_ff':>20} "
+          f"{'vs baseline':>11}")  # fmt: skip
+    for (name, k, precision, replay), runs in measured.items():
         sps, per_cpu = np.mean(runs, axis=0)
-        ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision], axis=0)
-        line = f"{name:<12} {k:>3} {precision:>10} {sps:>9,.0f} {per_cpu:>10,.0f} "
+        ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
+        line = f"{name:<12} {k:>3} {precision:>10} {replay:>6} {sps:>9,.0f} {per_cpu:>10,.0f} "
         line += f"{per_cpu / bounds[name]:>9.0%} {ff_sps / sps:>9.2f}x wall "
         line += f"{ff_per_cpu / per_cpu:>5.2f}x CPU"
         if baseline is not None:
             line += f" {sps / baseline[0]:>10.2f}x"
         print(line)
     if baseline is not None:
-        for k, precision in settings:
-            ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision], axis=0)
-            print(f"a3c_ff K={k} {precision} vs the baseline loop: {ff_sps / baseline[0]:.2f}x "
-                  f"steps/s, {ff_per_cpu / baseline[1]:.2f}x per CPU-second")  # fmt: skip
+        for k, precision, replay in settings:
+            ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
+            print(f"a3c_ff K={k} {precision} replay {replay} vs the baseline loop: "
+                  f"{ff_sps / baseline[0]:.2f}x steps/s, {ff_per_cpu / baseline[1]:.2f}x per "
+                  f"CPU-second")  # fmt: skip
 
 
 if __name__ == "__main__":

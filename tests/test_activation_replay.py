@@ -29,7 +29,7 @@ def test_a_linear_layer_replays_what_acting_recorded_and_backpropagates_by_hand(
     with torch.no_grad():
         layer.weight.copy_(torch.tensor([[1.0, 2.0], [3.0, 4.0]]))
         layer.bias.copy_(torch.tensor([0.5, -0.5]))
-    replay = runtime.ActivationReplay(layer, "fp32")
+    replay = runtime.ActivationReplay(layer)
     x = torch.tensor([[1.0, -1.0], [2.0, 0.5]])
     with torch.inference_mode(), replay.recording():
         for row in x:
@@ -50,7 +50,7 @@ def test_a_linear_layer_replays_what_acting_recorded_and_backpropagates_by_hand(
 def test_rows_acting_never_saw_are_computed_and_paused_forwards_are_not_recorded():
     torch.manual_seed(0)
     layer = nn.Linear(3, 2)
-    replay = runtime.ActivationReplay(layer, "fp32")
+    replay = runtime.ActivationReplay(layer)
     x = torch.randn(3, 3)
     with torch.inference_mode(), replay.recording():
         layer(x[:1])
@@ -65,7 +65,7 @@ def test_rows_acting_never_saw_are_computed_and_paused_forwards_are_not_recorded
 
 def test_a_replay_that_leaves_recorded_rows_is_an_error():
     layer = nn.Linear(3, 2)
-    replay = runtime.ActivationReplay(layer, "fp32")
+    replay = runtime.ActivationReplay(layer)
     with torch.inference_mode(), replay.recording():
         layer(torch.randn(4, 3))
     with (
@@ -82,7 +82,7 @@ def test_the_layers_stay_what_they_were():
     torch.manual_seed(0)
     model = module.ActorCritic(3, tiny_args(module))
     plain = copy.deepcopy(model)
-    replay = runtime.ActivationReplay(model, "fp32")
+    replay = runtime.ActivationReplay(model)
     assert len(replay.layers) == 5  # 2 convs, the FC layer, the two heads
     assert all(isinstance(layer, (nn.Conv2d, nn.Linear)) for layer in replay.layers)
     assert list(model.state_dict()) == list(plain.state_dict())
@@ -102,7 +102,7 @@ def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread
     torch.manual_seed(1)
     plain = module.AGENT.build_network(3, args)
     model = copy.deepcopy(plain)
-    replay = runtime.ActivationReplay(model, precision)
+    replay = runtime.ActivationReplay(model)
     act, learn = runtime.autocast_contexts(precision)
     obs = torch.randint(0, 256, (4, 2, 4, 84, 84), dtype=torch.uint8)
     lstm = name == "a3c_lstm"

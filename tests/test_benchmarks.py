@@ -29,14 +29,19 @@ def test_env_throughput_reports_every_configuration():
 def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting():
     result = run(
         "benchmarks/a3c_throughput.py", "agents/a3c_lstm.py", "--seconds", "3", "--no-baseline",
-        "--envs-per-worker", "1", "2", "--precision", "bf16",
+        "--envs-per-worker", "1", "2", "--precision", "bf16", "--replay", "on", "off",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    rows = re.findall(r"^(a3c_\w+) +(\d+) +(\w+) +([\d,]+) +[\d,]+ +\d+% ", result.stdout, re.M)
-    assert {row[:3] for row in rows} == {
-        (name, k, "bf16") for name in ("a3c_ff", "a3c_lstm") for k in ("1", "2")
+    rows = re.findall(
+        r"^(a3c_\w+) +(\d+) +(\w+) +(on|off) +([\d,]+) +[\d,]+ +\d+% ", result.stdout, re.M
+    )
+    assert {row[:4] for row in rows} == {
+        (name, k, "bf16", replay)
+        for name in ("a3c_ff", "a3c_lstm")
+        for k in ("1", "2")
+        for replay in ("on", "off")
     }
-    assert all(int(row[3].replace(",", "")) > 0 for row in rows)
+    assert all(int(row[4].replace(",", "")) > 0 for row in rows)
     assert re.search(r"a3c_lstm: [\d.]+ MFLOP per env step", result.stdout)
 
 
