@@ -217,7 +217,8 @@ class ActivationReplay:
     from the replayed outputs as before. Outside the two contexts the layers are plain.
 
     The learning forward must call each layer on the rollout's rows in acting order (step-major,
-    as the workers flatten obs_buf), once per forward; a forward that is not a step of the
+    as the workers flatten obs_buf; a Conv2d's inputs batched, a Linear's rows its leading
+    dimensions), once per forward; a forward that is not a step of the
     rollout (V(s_last) of a truncated episode) runs inside `paused()`. Leaving `replaying()`
     checks that every recorded row was taken back. Under --precision bf16-learn the replayed
     outputs are acting's fp32 ones and the backward runs in bf16."""
@@ -301,7 +302,7 @@ class _Recording:
         if mode == "replay":
             return _Replay.apply(x, self.weight, self.bias, self)
         y = super().forward(x)
-        rows = y if y.dim() in (2, 4) else y.reshape(-1, y.shape[-1])
+        rows = y if y.dim() == 2 or isinstance(self, nn.Conv2d) else y.reshape(-1, y.shape[-1])
         end = self.count + len(rows)
         if self.recorded is None or end > len(self.recorded):
             self.grow(rows, end)

@@ -63,6 +63,22 @@ def test_rows_acting_never_saw_are_computed_and_paused_forwards_are_not_recorded
     torch.testing.assert_close(y, nn.functional.linear(x, layer.weight, layer.bias))
 
 
+def test_a_linear_layer_over_more_dimensions_replays_its_rows():
+    """A Linear applied to (T, B, ..., features), as the LSTM's heads are to (T, B, cells):
+    acting records the rows of each step, and the replay takes them back in that order."""
+    torch.manual_seed(0)
+    layer = nn.Linear(3, 2)
+    replay = runtime.ActivationReplay(layer)
+    x = torch.randn(3, 2, 4, 3)  # T = 3 steps of B = 2, 4 positions each
+    with torch.inference_mode(), replay.recording():
+        for t in range(2):
+            layer(x[t, None])  # acting: (1, B, 4, features)
+    assert layer.count == 2 * 2 * 4
+    with replay.replaying():
+        y = layer(x)  # step 2 was not recorded
+    torch.testing.assert_close(y, nn.functional.linear(x, layer.weight, layer.bias))
+
+
 def test_a_replay_that_leaves_recorded_rows_is_an_error():
     layer = nn.Linear(3, 2)
     replay = runtime.ActivationReplay(layer)
