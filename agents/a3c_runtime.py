@@ -8,7 +8,8 @@ does not stop the workers, and once more at the end), writes and reads checkpoin
 validated on load), logs to TensorBoard, evaluations.csv and the console, ends a run cleanly on
 Ctrl-C or SIGTERM, plays a checkpoint's episodes (--evaluate, --render human) and checks the flags
 that every script has. It also holds the library pieces every loop uses: the shared RMSprop and
-Adam, gradient clipping and the learning-rate schedule (as torch.optim is to CleanRL).
+Adam, gradient clipping, the learning-rate schedule (as torch.optim is to CleanRL) and the
+activation replay that spares the update its forward pass (ActivationReplay).
 
 A script gives it an `Agent` and calls `run(agent)` from its `main`:
 
