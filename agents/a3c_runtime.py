@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import ctypes
 import math
 import os
 import random
@@ -344,8 +345,14 @@ class _Replay(torch.autograd.Function):
         rows = x.shape[0] if conv else x.numel() // x.shape[-1]
         taken = layer.take(rows)
         done = 0 if taken is None else len(taken)
-        if done < rows:  # rows acting never saw: computed here, in the recorded precision
-            rest = layer.compute(x[done:] if conv else x.reshape(rows, -1)[done:])
+        if done < rows:  # rows acting never saw (s_n): computed here, in acting's precision
+            rest_x = x[done:] if conv else x.reshape(rows, -1)[done:]
+            acting_fp32 = layer.recorded is not None and layer.recorded.dtype == torch.float32
+            # bf16-learn acts in fp32: computing s_n in fp32 too keeps every forward value
+            # acting's, and autocast does not convert a whole weight matrix for one row
+            no_autocast = torch.autocast("cpu", enabled=False)
+            with no_autocast if acting_fp32 else contextlib.nullcontext():
+                rest = layer.compute(rest_x.float() if acting_fp32 else rest_x)
             y = rest if taken is None else torch.cat([taken, rest.to(taken.dtype)])
         else:
             y = taken.clone()  # a fresh tensor: the caller may modify it in place
@@ -420,9 +427,10 @@ class SharedRMSprop:
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
         torch._foreach_mul_(self.square_avg, self.decay)
         torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
-        # g * rsqrt(ms + eps): on CPU about 2x faster than sqrt and a division
+        # g * (ms + eps)^-0.5: on CPU faster than sqrt and a division, and pow_(-0.5) than
+        # rsqrt_ (same values, about half the time in torch 2.13's foreach kernels)
         inv_rms = torch._foreach_add(self.square_avg, self.eps)
-        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_pow_(inv_rms, -0.5)
         torch._foreach_addcmul_(self.params, grads, inv_rms, value=-lr)
 
     def state_dict(self) -> dict:
@@ -451,7 +459,7 @@ class SharedAdam:
         torch._foreach_addcmul_(self.exp_avg_sq, grads, grads, value=1.0 - self.beta2)
         inv_rms = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
         torch._foreach_add_(inv_rms, self.eps)
-        torch._foreach_rsqrt_(inv_rms)
+        torch._foreach_pow_(inv_rms, -0.5)  # as SharedRMSprop's
         torch._foreach_addcmul_(
             self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)
         )
@@ -562,6 +570,32 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+# False leaves glibc's malloc as it is in the workers: benchmarks/a3c_throughput.py and
+# a3c_step_profile.py --default-malloc set it, to measure what keeping freed memory saves
+KEEP_FREED_MEMORY = True
+
+
+def configure_process() -> None:
+    """What every worker and evaluator process sets first: one torch thread, denormals flushed,
+    and glibc's malloc told to keep freed memory. Without the last, a worker's multi-megabyte
+    tensors (the FC layer's bf16 copy and gradient, 2.7 and 5.3 MB) may each come from a fresh
+    mmap and pay a page fault per 4 KB page on every update: measured on A3C FF at K = 1, about
+    30 faults per env step (0.5-0.8 ms per update) in most processes and none in others,
+    depending on where glibc's heap happens to end (benchmarks/a3c_step_profile.py prints the
+    faults per step)."""
+    torch.set_num_threads(1)
+    torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
+    if not KEEP_FREED_MEMORY:
+        return
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc (macOS, Windows): nothing to set
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
+    mallopt(m_mmap_threshold, 32 << 20)  # glibc's maximum: blocks up to 32 MB from the heap
+    mallopt(m_trim_threshold, 1 << 30)  # and the heap not handed back to the system
+
+
 def run_process(name: str, errors: Any, target: Callable[..., None], *target_args: Any) -> None:
     """Process entry: one torch thread; leave SIGINT to the main process (the terminal sends it
     to the whole group); SIGTERM ends the loop; an exception goes to `errors` as (name, trace)."""
@@ -574,8 +608,7 @@ def run_process(name: str, errors: Any, target: Callable[..., None], *target_arg
     _main_pid = os.getppid()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, on_sigterm)
-    torch.set_num_threads(1)
-    torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
+    configure_process()
     try:
         target(*target_args)
     except BaseException:

@@ -2,6 +2,7 @@
 
     python benchmarks/a3c_step_profile.py [--seconds 20] [--env Catch-v0]
                                           [--envs-per-worker 1] [--precision fp32]
+                                          [--default-malloc]
 
 One process and one torch thread run agents/a3c_ff.py's own `worker` loop (sync, act up to t_max
 steps, one batched forward and backward, clip, shared RMSprop step) with a PhaseTimer from
@@ -9,14 +10,25 @@ agents/a3c_runtime.py, which the loop calls between its phases (training runs pa
 cost per step). "sync" includes the loop's bookkeeping. The phases' shares are what matters;
 absolute times depend on the machine and its load. "env step" is the emulator's (or Catch's)
 share: the vector env's step, preprocessing and frame stack included.
+
+It then shows how the acting forward's time depends on its place in the rollout (the network
+class's forward is wrapped to time each call made in inference mode), next to the same forward
+run back to back on one state and after a pause (sleeping) of a few milliseconds: on a shared
+host the first forwards after the learning phase run several times slower than warm ones, because
+the caches lose the forward's code and data while the worker is elsewhere, even asleep.
+The first line also gives the page faults per step; --default-malloc leaves glibc's malloc as
+it is instead of setting it as the workers do (a3c_runtime.configure_process), to compare.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import resource
+import statistics
 import sys
 import threading
+import time
 from pathlib import Path
 
 import torch
@@ -56,6 +68,57 @@ def profile(a3c, seconds: float, **flags) -> tuple[int, dict[str, float]]:
     return shared.global_step(), timer.spent
 
 
+def time_acting_forwards(a3c) -> list[list[float]]:
+    """Wrap the script's network class so that every acting forward (made in inference mode) is
+    timed; returns the seconds of the k-th forward of each rollout in entry k. A forward outside
+    inference mode (the learning pass) ends the rollout."""
+    by_position: list[list[float]] = []
+    position = 0
+    forward = a3c.ActorCritic.forward
+
+    def timed_forward(self, obs):  # noqa: ANN001, ANN202 (the network's own signature)
+        nonlocal position
+        if not torch.is_inference_mode_enabled():
+            position = 0
+            return forward(self, obs)
+        start = time.perf_counter()
+        result = forward(self, obs)
+        if position == len(by_position):
+            by_position.append([])
+        by_position[position].append(time.perf_counter() - start)
+        position += 1
+        return result
+
+    a3c.ActorCritic.forward = timed_forward
+    return by_position
+
+
+def forward_after_pause(a3c, env_id: str, pauses_ms: tuple[float, ...]) -> dict[float, float]:
+    """Median seconds of one acting forward (batch 1, a fresh network) after sleeping each of
+    `pauses_ms` (0: back to back), 40 times each."""
+    import a3c_runtime as runtime
+
+    args = runtime.resolve_defaults(a3c.Args(num_workers=1, env=env_id))
+    env = a3c.make_env(env_id)
+    obs = torch.from_numpy(env.reset(seed=0)[0])[None]
+    model = a3c.ActorCritic(env.action_space.n, args).to(memory_format=torch.channels_last)
+    env.close()
+    medians = {}
+    with torch.inference_mode():
+        for _ in range(50):
+            model(obs)
+        for pause in pauses_ms:
+            seconds = []
+            for _ in range(40):
+                if pause:
+                    time.sleep(pause / 1e3)
+                start = time.perf_counter()
+                model(obs)
+                seconds.append(time.perf_counter() - start)
+            medians[pause] = statistics.median(seconds)
+    return medians
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=20.0, help="how long to run the loop")
@@ -64,24 +127,35 @@ def main() -> None:
     parser.add_argument(
         "--precision", default="fp32", choices=["auto", "fp32", "bf16", "bf16-learn"]
     )
+    parser.add_argument(
+        "--default-malloc",
+        action="store_true",
+        help="leave glibc's malloc settings as they are (the workers keep freed memory)",
+    )
     opts = parser.parse_args()
     if opts.seconds <= 0:
         parser.error("--seconds must be > 0")
     if opts.envs_per_worker < 1:
         parser.error("--envs-per-worker must be >= 1")
-    torch.set_num_threads(1)
-    torch.set_flush_denormal(True)  # as the workers do
     import catch_env  # noqa: F401  (registers Catch-v0)
 
     flags = {"env": opts.env, "envs_per_worker": opts.envs_per_worker, "precision": opts.precision}
     a3c = load_a3c()
+    import a3c_runtime  # the script's sibling, importable once the script is loaded
+
+    a3c_runtime.KEEP_FREED_MEMORY = not opts.default_malloc
+    a3c_runtime.configure_process()  # as the workers do
+    acting = time_acting_forwards(a3c)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     try:
         steps, spent = profile(a3c, opts.seconds, **flags)
     except a3c.UsageError as e:
         parser.error(str(e))
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
     total = sum(spent.values())
     print(f"{opts.env}, K={opts.envs_per_worker}, {opts.precision}: {steps:,} env steps, "
-          f"{steps / total:,.0f} steps/s in one process")  # fmt: skip
+          f"{steps / total:,.0f} steps/s in one process, {faults / steps:.1f} page faults per "
+          "step (building the env and network included)")  # fmt: skip
     for phase, seconds in spent.items():
         print(f"{phase:<14} {seconds / steps * 1e6:8.1f} us/step {seconds / total:6.1%}")
     # the ceiling that removing all per-step Python, copying, sync and optimizer work would reach
@@ -89,6 +163,21 @@ def main() -> None:
     print(
         f"network forward+backward alone: {network / total:.1%} of the time; with every other "
         f"phase free, at most {steps / network:,.0f} steps/s in one process"
+    )
+    # the acting forward by its place in the rollout, against the same forward warm
+    rollouts = len(acting[0])
+    shown = [k for k, times in enumerate(acting) if len(times) >= rollouts / 2]
+    medians = ", ".join(f"{statistics.median(acting[k]) * 1e6:.0f}" for k in shown)
+    print(f"acting forward by place in the rollout, median us (1st..{len(shown)}th): {medians}")
+    pauses = forward_after_pause(a3c, opts.env, (0, 1, 5, 10, 20))
+    print(
+        f"the same forward, fresh network, back to back: {pauses[0] * 1e6:.0f} us; after "
+        + ", ".join(f"sleeping {p} ms: {pauses[p] * 1e6:.0f}" for p in list(pauses)[1:])
+    )
+    above = sum(sum(times) - len(times) * pauses[0] for times in acting)
+    print(
+        f"acting forwards above the back-to-back time: {above / steps * 1e6:.0f} us/step, "
+        f"{above / total:.1%} of the loop's time"
     )
 
 

@@ -4,6 +4,7 @@
                                         [--num-workers N] [--no-baseline] [--env Catch-v0]
                                         [--envs-per-worker 1 [K ...]] [--precision fp32 [...]]
                                         [--replay on [off]] [--eval-episodes N]
+                                        [--default-malloc]
 
 It runs each script's own training loop (evaluations included) for --seconds and reports the
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
@@ -11,6 +12,8 @@ SCRIPTs (e.g. agents/a3c_lws.py) are compared with it: time per step relative to
 the same run. Every script runs at every setting, each value of --envs-per-worker with each
 --precision (K = 1 is the thesis's algorithm) and each --replay: off turns the scripts'
 ActivationReplay off (the learning pass recomputes the forward), to measure what it saves.
+--default-malloc leaves glibc's malloc settings in the scripts' workers (which otherwise keep
+freed memory, a3c_runtime.configure_process), to measure what that saves.
 With --rounds R the baseline and the scripts take turns R times and the means are reported, so
 that slow drifts of a shared machine's speed fall on all of them alike.
 
@@ -157,10 +160,18 @@ def children_cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+def children_page_faults() -> int:
+    """Minor page faults of this process's finished children: a fresh multi-megabyte tensor
+    that glibc serves by mmap faults once per 4 KB page, and how often that happens in a
+    process depends on where its heap happens to end, which makes a loop's speed vary by run."""
+    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_minflt
+
+
 def run_baseline(
     a3c, env: str, num_workers: int, seconds: float, warmup: float
-) -> tuple[float, float]:
-    """Returns (steps/s after the warm-up, total steps / worker CPU-seconds * num_workers)."""
+) -> tuple[float, float, float]:
+    """Returns (steps/s after the warm-up, total steps / worker CPU-seconds * num_workers,
+    the workers' page faults per step)."""
     args = a3c.resolve_defaults(a3c.Args(num_workers=num_workers, env=env))
     global_model = a3c.ActorCritic(num_actions(a3c, env), args)
     global_model.share_memory()
@@ -168,7 +179,7 @@ def run_baseline(
     steps = torch.zeros(num_workers, dtype=torch.int64).share_memory_()
     ctx = mp.get_context("fork")
     stop = ctx.Event()
-    cpu_before = children_cpu_seconds()
+    cpu_before, faults_before = children_cpu_seconds(), children_page_faults()
     workers = [
         ctx.Process(target=baseline_worker,
                     args=(a3c, i, global_model, square_avg, steps, stop, args), daemon=True)
@@ -186,7 +197,7 @@ def run_baseline(
         if w.exitcode != 0:
             raise RuntimeError(f"baseline worker exited with {w.exitcode}")
     per_cpu = int(steps.sum()) / (children_cpu_seconds() - cpu_before) * num_workers
-    return sps, per_cpu
+    return sps, per_cpu, (children_page_faults() - faults_before) / int(steps.sum())
 
 
 def num_actions(a3c, env_id: str) -> int:
@@ -205,19 +216,21 @@ def run_script(
     precision: str,
     eval_episodes: int | None = None,
     replay: bool = True,
-) -> tuple[float, float]:
-    """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers)."""
+) -> tuple[float, float, float]:
+    """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers, the
+    page faults per step of the run's processes)."""
     a3c_runtime.ActivationReplay.enabled = replay  # the forked workers inherit it
     with tempfile.TemporaryDirectory() as run_dir:
         args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir, env=env,
                         log_interval=max(5.0, seconds / 4), envs_per_worker=envs_per_worker,
                         precision=precision, eval_episodes=eval_episodes)  # fmt: skip
         args.total_timesteps = 10**9  # the time limit ends the run
-        cpu_before = children_cpu_seconds()
+        cpu_before, faults_before = children_cpu_seconds(), children_page_faults()
         summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
     a3c_runtime.ActivationReplay.enabled = True
     per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
-    return summary["sps"], per_cpu
+    faults = (children_page_faults() - faults_before) / summary["global_step"]
+    return summary["sps"], per_cpu, faults
 
 
 def main() -> None:
@@ -238,6 +251,9 @@ def main() -> None:
                         help="the precisions to measure")  # fmt: skip
     parser.add_argument("--replay", nargs="+", default=["on"], choices=["on", "off"],
                         help="ActivationReplay on (as the scripts run) and/or off")  # fmt: skip
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="the scripts' workers leave glibc's malloc settings as they are "
+                             "(they keep freed memory otherwise)")  # fmt: skip
     opts = parser.parse_args()
     if opts.eval_episodes is not None and opts.eval_episodes < 1:
         parser.error("--eval-episodes must be >= 1")
@@ -251,6 +267,7 @@ def main() -> None:
         if not path.is_file():
             parser.error(f"no such script: {path} (the agents are agents/a3c_*.py)")
     torch.set_num_threads(1)
+    a3c_runtime.KEEP_FREED_MEMORY = not opts.default_malloc  # the forked workers inherit it
     paths = [FF_SCRIPT] + [p.resolve() for p in opts.scripts if p.resolve() != FF_SCRIPT]
     scripts = {path.stem: load_script(path) for path in dict.fromkeys(paths)}
     a3c = scripts["a3c_ff"]
@@ -276,7 +293,8 @@ def main() -> None:
             )
     print(f"machine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}; {opts.env}; "
           f"{num_workers} workers; {opts.seconds:g} s per measurement, {opts.rounds} "
-          f"round(s)")  # fmt: skip
+          f"round(s)" + ("; scripts with glibc's default malloc" if opts.default_malloc else "")
+          )  # fmt: skip
     gflops = matmul_gflops()
     print(f"matmul: {gflops:.1f} GFLOP/s per core (fp32, 1 thread)")
     bounds = {}
@@ -292,26 +310,19 @@ def main() -> None:
         if not opts.no_baseline:  # every round, so that drifts of the host fall on it too
             print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
             baselines.append(run_baseline(a3c, opts.env, num_workers, opts.seconds, warmup=3.0))
-            print(f"baseline: {baselines[-1][0]:,.0f} steps/s ({baselines[-1][1]:,.0f} per "
-                  f"{num_workers} CPU-seconds)")  # fmt: skip
+            sps, per_cpu, faults = baselines[-1]
+            print(f"baseline: {sps:,.0f} steps/s ({per_cpu:,.0f} per {num_workers} "
+                  f"CPU-seconds; {faults:.1f} page faults per step)")  # fmt: skip
         for name, k, precision, replay in measured:
             print(
                 f"load average {os.getloadavg()[0]:.2f}; {name} K={k} {precision} replay "
                 f"{replay} ...",
                 flush=True,
             )
-            measured[name, k, precision, replay].append(
-                run_script(
-                    scripts[name],
-                    opts.env,
-                    num_workers,
-                    opts.seconds,
-                    k,
-                    precision,
-                    opts.eval_episodes,
-                    replay == "on",
-                )  # fmt: skip
-            )
+            result = run_script(scripts[name], opts.env, num_workers, opts.seconds, k, precision,
+                                opts.eval_episodes, replay == "on")  # fmt: skip
+            print(f"{name}: {result[2]:.1f} page faults per step")
+            measured[name, k, precision, replay].append(result)
 
     baseline = np.mean(baselines, axis=0) if baselines else None
     if len(baselines) > 1:
@@ -321,8 +332,8 @@ def main() -> None:
           f"{'per CPU-s':>10} {'of bound':>9} {'time/step vs a3c_ff':>20} "
           f"{'vs baseline':>11}")  # fmt: skip
     for (name, k, precision, replay), runs in measured.items():
-        sps, per_cpu = np.mean(runs, axis=0)
-        ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
+        sps, per_cpu, _ = np.mean(runs, axis=0)
+        ff_sps, ff_per_cpu, _ = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
         line = f"{name:<12} {k:>3} {precision:>10} {replay:>6} {sps:>9,.0f} {per_cpu:>10,.0f} "
         line += f"{per_cpu / bounds[name]:>9.0%} {ff_sps / sps:>9.2f}x wall "
         line += f"{ff_per_cpu / per_cpu:>5.2f}x CPU"
@@ -331,7 +342,7 @@ def main() -> None:
         print(line)
     if baseline is not None:
         for k, precision, replay in settings:
-            ff_sps, ff_per_cpu = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
+            ff_sps, ff_per_cpu, _ = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
             print(f"a3c_ff K={k} {precision} replay {replay} vs the baseline loop: "
                   f"{ff_sps / baseline[0]:.2f}x steps/s, {ff_per_cpu / baseline[1]:.2f}x per "
                   f"CPU-second")  # fmt: skip

@@ -63,6 +63,27 @@ def test_rows_acting_never_saw_are_computed_and_paused_forwards_are_not_recorded
     torch.testing.assert_close(y, nn.functional.linear(x, layer.weight, layer.bias))
 
 
+def test_rows_acting_never_saw_are_computed_in_actings_precision():
+    """bf16-learn acts in fp32 and learns under bf16 autocast: the bootstrap row s_n, which
+    acting never saw, is computed in fp32 like the rows it did see, not in bf16."""
+    torch.manual_seed(0)
+    layer = nn.Linear(64, 8)
+    replay = runtime.ActivationReplay(layer)
+    x = torch.randn(3, 64)
+    act, learn = runtime.autocast_contexts("bf16-learn")
+    with torch.inference_mode(), act, replay.recording():
+        layer(x[:1])
+        layer(x[1:2])
+    with learn, replay.replaying():
+        y = layer(x)
+    assert y.dtype == torch.float32
+    fp32 = nn.functional.linear(x, layer.weight, layer.bias)
+    torch.testing.assert_close(y, fp32, rtol=1e-6, atol=1e-6)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        bf16 = layer.compute(x[2:])  # what the row would be under the learning autocast
+    assert (bf16.float() - fp32[2:]).abs().max() > 1e-3  # so the check above can fail
+
+
 def test_a_linear_layer_over_more_dimensions_replays_its_rows():
     """A Linear applied to (T, B, ..., features), as the LSTM's heads are to (T, B, cells):
     acting records the rows of each step, and the replay takes them back in that order."""
