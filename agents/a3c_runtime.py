@@ -579,10 +579,11 @@ def configure_process() -> None:
     """What every worker and evaluator process sets first: one torch thread, denormals flushed,
     and glibc's malloc told to keep freed memory. Without the last, a worker's multi-megabyte
     tensors (the FC layer's bf16 copy and gradient, 2.7 and 5.3 MB) may each come from a fresh
-    mmap and pay a page fault per 4 KB page on every update: measured on A3C FF at K = 1, about
-    30 faults per env step (0.5-0.8 ms per update) in most processes and none in others,
-    depending on where glibc's heap happens to end (benchmarks/a3c_step_profile.py prints the
-    faults per step)."""
+    mmap and pay a page fault per 4 KB page on every update: measured on A3C FF at K = 1, 23-40
+    faults per env step in most processes and about 1 in others, depending on where glibc's heap
+    happens to end; with it, about 1 in every process (benchmarks/a3c_step_profile.py prints the
+    faults per step). On the 2-core development VM the 2-worker steps/s did not change
+    measurably (results/throughput_batched/catch_malloc_ab_*.txt)."""
     torch.set_num_threads(1)
     torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
     if not KEEP_FREED_MEMORY:
