@@ -36,13 +36,16 @@ _ale_registered = False
 
 
 def _register_ale() -> bool:
-    """Register the ALE ids (BreakoutNoFrameskip-v4, ...); False if ale-py is not installed."""
+    """Register the ALE ids (BreakoutNoFrameskip-v4, ...); False if ale-py is not installed.
+    ALE's log level becomes Warning: its warnings and errors still show, but not the banner that
+    every new emulator prints at Info level to stderr (once per process)."""
     global _ale_registered
     if not _ale_registered:
         try:
             import ale_py
         except ImportError:
             return False
+        ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Warning)
         gym.register_envs(ale_py)
         _ale_registered = True
     return True

@@ -1,5 +1,8 @@
 """The thesis's preprocessing: `catch_env.wrappers.make_env` for Catch and for ALE ids."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -159,6 +162,17 @@ def test_atari_vector_env_resets_ended_episodes_in_the_same_step():
     assert info["final_obs"][i].shape == (4, 84, 84)
     assert all(np.array_equal(obs[i][0], frame) for frame in obs[i])
     envs.close()
+
+
+def test_an_atari_env_prints_nothing_to_stderr():
+    # ALE prints a banner at its Info log level for the first emulator of a process; a fresh
+    # interpreter, because this one may have made an emulator already
+    pytest.importorskip("ale_py")
+    code = (
+        "from catch_env.wrappers import make_env; make_env('BreakoutNoFrameskip-v4').reset(seed=0)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
 
 
 @pytest.mark.parametrize("num_envs", [0, -1, 1.5, True])
