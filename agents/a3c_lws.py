@@ -3,12 +3,13 @@
 # a copy of a3c_ff.py: `diff agents/a3c_ff.py agents/a3c_lws.py` shows the network and its flags.
 #
 # This file is the algorithm: its flags, the env, the network, the loss and the actor-learner
-# loop. The run machinery every script shares (processes, evaluator, checkpoints, logging,
-# signals, --evaluate, the shared optimizers) is agents/a3c_runtime.py.
+# loop. The run machinery every script shares is the a3c_runtime package (agents/a3c_runtime/):
+# A3C's structure (shared network and optimizer, N actor-learners, an evaluator) is its
+# a3c.train; processes and signals, evaluation, checkpoints and logging each have a module.
 import math
 import os
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -16,16 +17,16 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 from a3c_runtime import (
-    ActivationReplay,
     Agent,
-    PhaseTimer,
     Shared,
     UsageError,  # noqa: F401  (the variants' networks raise it for bad flags)
     annealed_lr,
     autocast_contexts,
     clip_gradients,
     default_num_workers,
+    default_text,
     process_seed,
+    replay_activations,
     resolve_defaults,  # noqa: F401  (tools fill an Args's defaults through the script)
     run,
     seed_everything,
@@ -40,10 +41,10 @@ class Args:
     """seed of the experiment: of the initial network and, with its index, of each process"""
     env: str = "Catch-v0"
     """the Gymnasium id: Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4"""
-    total_timesteps: int | None = None
-    """total global env steps T_max (default: 1e6 for Catch, 1e8 for ALE ids)"""
-    num_workers: int = default_num_workers()
-    """the number of actor-learner processes (default: the number of CPU cores)"""
+    total_timesteps: Annotated[int | None, default_text("1e6 for Catch, 1e8 for ALE ids")] = None
+    """total global env steps T_max"""
+    num_workers: Annotated[int, default_text("the number of CPU cores")] = default_num_workers()
+    """the number of actor-learner processes"""
     envs_per_worker: int = 1
     """K, the envs each worker steps together: it acts on all K with one batched forward and
     learns from the K x t_max rollout in one update (batched actors inside each Hogwild worker,
@@ -89,8 +90,8 @@ class Args:
     small eps the first updates are about 10 lr per weight, from 1 they start small"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
     """gradient clipping: per-tensor norm, per-value, global norm (thesis 6.3.1), or none"""
-    grad_clip: float | None = None
-    """the clipping bound (default: 40 for norm and value, c_g = 25 for global-norm)"""
+    grad_clip: Annotated[float | None, default_text("40; c_g = 25 for global-norm")] = None
+    """the clipping bound"""
 
     # Network (thesis 5.2.1 and chapter 6)
     activation: Literal["relu", "elu"] = "relu"
@@ -98,11 +99,11 @@ class Args:
     weight_init: Literal["torch", "he", "uniform-sqrt3"] = "torch"
     """weights: torch U(+-1/sqrt(fan_in)); he: truncated normal std sqrt(2/fan_in);
     uniform-sqrt3: U(+-sqrt(3)/sqrt(fan_in)) (thesis 6.3.3)"""
-    bias_init: float | None = None
-    """a constant for every bias (thesis A.1.3 uses 0.01); default: U(+-1/sqrt(fan_in)) for
-    torch init, 0 for the other weight inits"""
-    scale_obs: bool | None = None
-    """divide frames by 255; default: yes for ALE, no for Catch (the thesis fed Catch 0..255)"""
+    bias_init: Annotated[float | None, default_text("torch init's, else 0")] = None
+    """a constant for every bias (thesis A.1.3 uses 0.01); by default U(+-1/sqrt(fan_in)) with
+    torch init, 0 with the other weight inits"""
+    scale_obs: Annotated[bool | None, default_text("True for ALE, False for Catch")] = None
+    """divide frames by 255 (the thesis fed Catch 0..255)"""
 
     # Local weight sharing (thesis 6.1)
     lws_kcps: int = 3
@@ -130,13 +131,14 @@ class Args:
     --lws-kcps 4 --lws-centroids group --no-lws-trainable)"""
 
     # Evaluation, logging, checkpoints
-    eval_interval: int | None = None
-    """global steps between evaluations (default: 50,000 for Catch, 1,000,000 for ALE)"""
-    eval_episodes: int | None = None
-    """episodes per evaluation, sampling actions from pi (default 50; with --evaluate --render
-    human, 5)"""
-    checkpoint_interval: int | None = None
-    """global steps between checkpoints (default: the evaluation interval); also at the end"""
+    eval_interval: Annotated[int | None, default_text("50,000 for Catch, 1,000,000 for ALE")] = None
+    """global steps between evaluations"""
+    eval_episodes: Annotated[int | None, default_text("50; 5 with --evaluate --render human")] = (
+        None
+    )
+    """episodes per evaluation, sampling actions from pi"""
+    checkpoint_interval: Annotated[int | None, default_text("the evaluation interval")] = None
+    """global steps between checkpoints; also at the end"""
     log_interval: float = 5.0
     """seconds between console progress lines and TensorBoard scalars"""
     runs_root: str = "runs"
@@ -397,18 +399,15 @@ def a3c_loss(
     return policy_loss - ent_coef * entropy + vf_coef * value_loss, policy_loss, value_loss, entropy
 
 
-def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None = None) -> None:
+def worker(worker_id: int, shared: Shared, args: Args) -> None:
     """One actor-learner (Algorithm 1): sync, act t_max steps, one batched update, repeat.
     With --envs-per-worker K it steps K envs, acting on all K with one batched forward, and
     learns from the K x t_max rollout in one update. The rollout ends early only when every
-    env's episode ends at the same step: with K = 1, at the end of the episode, as in the thesis.
-    `timer` (benchmarks/a3c_step_profile.py) times the phases; None costs nothing per step."""
+    env's episode ends at the same step: with K = 1, at the end of the episode, as in the thesis."""
     seed = process_seed(args.seed, worker_id)
     seed_everything(seed)
     rng = np.random.default_rng(seed)
     envs = make_vector_env(args.env, args.envs_per_worker)
-    if timer is not None:
-        envs = timer.timed_env(envs)
     num_envs = envs.num_envs
     model = ActorCritic(envs.single_action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
@@ -421,15 +420,15 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
     rewards = np.zeros((args.t_max, num_envs), dtype=np.float32)
     dones = np.zeros((args.t_max, num_envs), dtype=bool)  # an episode ended at this step
     done_values = np.zeros((args.t_max, num_envs), dtype=np.float32)  # V(s_last) if truncated
-    stats = torch.zeros(len(Shared.STATS), dtype=torch.float64)
+    stats = shared.worker_stats(worker_id)  # Shared.STATS, added to by name
     obs, _ = envs.reset(seed=seed)
     obs_buf[0].copy_(torch.from_numpy(obs))
     # --precision: the acting and the learning forward passes under bf16 autocast or not, their
     # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
     act_precision, learn_precision = autocast_contexts(args.precision)
-    # the learning forward takes back the conv and linear outputs that acting computed (same
-    # theta', same states) instead of computing them again
-    replay = ActivationReplay(model)
+    # the learning forward over obs_buf takes back the conv and linear outputs that acting
+    # computed (same theta', same states) instead of computing them again (a3c_runtime.replay)
+    replay_activations(model, obs_buf)
 
     while shared.keep_running():
         global_step = shared.global_step()
@@ -437,11 +436,9 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
             break
         with torch.no_grad():
             torch._foreach_copy_(params, shared.params)  # theta' <- theta
-        if timer is not None:
-            timer.lap("sync")
         # act with the synced local network for t_max steps (or until every episode ends)
         dones[:] = False
-        with torch.inference_mode(), act_precision, replay.recording():
+        with torch.inference_mode(), act_precision:
             for t in range(args.t_max):
                 log_probs, _ = model(obs_buf[t])
                 action = sample_actions(log_probs.float().exp().numpy(), rng.random(num_envs))
@@ -453,24 +450,23 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
                 if ended.any():
                     dones[t] = ended
                     episodes = info["final_info"]["_episode"]
-                    stats[0] += int(episodes.sum())
-                    stats[1] += float(info["final_info"]["episode"]["r"][episodes].sum())
-                    stats[2] += int(info["final_info"]["episode"]["l"][episodes].sum())
+                    stats.add(
+                        episodes=int(episodes.sum()),
+                        return_sum=float(info["final_info"]["episode"]["r"][episodes].sum()),
+                        length_sum=int(info["final_info"]["episode"]["l"][episodes].sum()),
+                    )
                     done_values[t] = 0.0
                     cut = truncated & ~terminated  # a time limit: bootstrap from V(s_last)
                     if cut.any():
                         last_obs = torch.from_numpy(np.stack(info["final_obs"][cut]))
-                        with replay.paused():  # not a step of the rollout
-                            done_values[t, cut] = model(last_obs)[1].float().numpy()
+                        done_values[t, cut] = model(last_obs)[1].float().numpy()
                     if ended.all():
                         break
-        if timer is not None:
-            timer.lap("act")
         n = t + 1
         # one batched forward/backward over the n x K states; row n gives V(s_n) to bootstrap
         # from, unless every episode has ended there
         bootstrap = not dones[n - 1].all()
-        with learn_precision, replay.replaying():
+        with learn_precision:
             log_probs, values = model(obs_buf[: n + 1 if bootstrap else n].flatten(0, 1))
         log_probs, values = log_probs.float(), values.float()  # the loss in float32
         bootstrap_values = values[n * num_envs :].detach().numpy() if bootstrap else 0.0
@@ -485,26 +481,18 @@ def worker(worker_id: int, shared: Shared, args: Args, timer: PhaseTimer | None 
             args.ent_coef,
             args.vf_coef,
         )
-        if timer is not None:
-            timer.lap("learn forward")
         grads = torch.autograd.grad(loss, params)
-        if timer is not None:
-            timer.lap("backward")
         grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
-        if timer is not None:
-            timer.lap("clip")
         shared.optimizer.step(grads, annealed_lr(args, global_step))
-        if timer is not None:
-            timer.lap("optimizer")
 
         shared.steps[worker_id] += n * num_envs
-        stats[3] += 1
-        # Python floats: adding the loss tensors themselves would chain every rollout's autograd
-        # graph onto stats, a memory leak
-        stats[4:8] += torch.tensor(
-            [policy_loss.item(), value_loss.item(), entropy.item(), grad_norm]
+        stats.add(
+            updates=1,
+            policy_loss=policy_loss.item(),
+            value_loss=value_loss.item(),
+            entropy=entropy.item(),
+            grad_norm=grad_norm,
         )
-        shared.stats[worker_id].copy_(stats)
         obs_buf[0].copy_(obs_buf[n])  # the next rollout starts where this one stopped
     envs.close()
 
@@ -520,7 +508,8 @@ AGENT = Agent(
 
 
 def main() -> int:
-    """Train, or play a checkpoint's episodes with --evaluate; see --help for every flag."""
+    """Train (a3c_runtime.a3c.train), or play a checkpoint's episodes with --evaluate; see
+    --help for every flag."""
     return run(AGENT)
 
 

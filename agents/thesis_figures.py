@@ -4,7 +4,8 @@ The thesis's Catch figures (6.3, 6.5-6.8, 7.1-7.3, 7.5-7.7, A.1-A.3, C.1) are le
 sweeps. For each figure this tool runs every line with the flags that reproduce its configuration
 as run (read from the thesis's own code: docs/thesis-figures-as-run.md and the "As run" section
 of docs/thesis-notes.md), through agents/sweep.py, at a budget of your choosing, and draws the
-figure with agents/plot_sweep.py, next to the thesis's numbers where they are known.
+figure with agents/plot_sweep.py, next to the thesis's numbers where they are known. The figures,
+their lines, flags and evidence are data: agents/thesis_figures.toml (its header gives the format).
 
     python agents/thesis_figures.py --list                  # every figure, its lines and flags
     python agents/thesis_figures.py fig7.6 --runs 8 --steps 250000 --out sweeps/thesis
@@ -35,7 +36,8 @@ each (as reproduce.sh does), so that a stopped figure has covered its lines even
 appears in several figures (A3C FF) is run once per figure, in that figure's folder.
 
 Exit codes: 0 when done, 1 when some line's every run failed, 2 for bad arguments (nothing is
-created) or a sweep folder holding another configuration, 130 when interrupted.
+created), a malformed thesis_figures.toml or a sweep folder holding another configuration, 130
+when interrupted.
 """
 
 from __future__ import annotations
@@ -43,16 +45,23 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import shlex
 import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
 ROOT = Path(__file__).resolve().parents[1]
 AGENTS = ROOT / "agents"
 SWEEP = AGENTS / "sweep.py"
 PLOT = AGENTS / "plot_sweep.py"
+DATA = AGENTS / "thesis_figures.toml"  # the figures: their lines, flags and the evidence
 DEFAULT_LR_RANGE = (1e-5, 1e-2)  # the range the thesis's bars average over
 EVALUATIONS_PER_RUN = 20  # the thesis: every 50,000 steps in 1M
 DEFAULT_SEED = 1  # sweep.py's default, and the first reproduction's
@@ -103,453 +112,129 @@ class Figure:
         return self.id.removeprefix("fig")
 
 
+def display(path: Path) -> str:
+    """A path as the commands show it: relative to the working directory when inside it."""
+    relative = os.path.relpath(path)
+    return relative if not relative.startswith("..") else str(path)
+
+
 # ------------------------------------------------------------------------------------------------
-# The figures, as run. Presets are experiments/param_sweep.py's in jostosh/deeprl; every preset
-# up to 69 most likely ran lambda_V = 1.0 (--vf-coef 1.0), later ones 0.5 (thesis-figures-as-run
-# .md). Every run: 12 threads, RMSprop (decay 0.99, eps 0.1 in the root), per-tensor norm-40
-# clipping, torch init, ReLU, beta 0.01 unless a line says otherwise.
+# The figures, read from thesis_figures.toml and checked
 # ------------------------------------------------------------------------------------------------
-FF = "a3c_ff.py"
-# A3C FF as run (preset 13); lambda_V 1.0 (I): the text's 0.5 became the default on 2017-05-22
-FF_AS_RUN = "--vf-coef 1.0"
-FF_SOURCE = "preset 13 (PS@53e5759); lambda_V 1.0 (I)"
-# LWS as run (sisws.py@42815b8): exp(-||A (x - mu)||^2) with a trainable 2x2 A per centroid,
-# 'same' padding, 32 maps in both layers, tflearn uniform_scaling kernels U(+-sqrt(3/fan_in))
-LWS_AS_RUN = (
-    "--lws-similarity matrix --lws-padding same --lws-second-layer-maps 32 "
-    "--lws-kernel-init uniform-sqrt3 --vf-coef 1.0"
-)
-# LPQ as run: p0 = pN = 0.787 gives tau = 1 by the cold formula, which a3c_lpq.py computes
-LPQ_AS_RUN = "--prototypes-per-action 16 --vf-coef 0.5"
-# GLPQ as run: the code's relative distance (an operator-precedence slip), squared Euclidean
-GLPQ_AS_RUN = "--mu-form code --distance squared-euclidean --vf-coef 0.5"
-# the 1/tau loss correction as run divided the entropy term too
-CORRECTED = "--tau-loss-correction --tau-loss-scope policy-and-entropy"
-GLPQ_COLD = f"--temperature cold {CORRECTED} {GLPQ_AS_RUN}"
-GLPQ_HOT = f"--temperature hot {CORRECTED} {GLPQ_AS_RUN}"
-C1_SOURCE = (
-    "preset 89 (lpq_temp.sh): GLPQ, ppa = nwp = 16, a constant tau ~ logU[0.01, 100] (lpq_temp, "
-    "7fe0c47 to aab9541, before any loss correction) (I)"
-)
-COLD_SOURCE = "GLPQ, cold tau(t), p 0.9 -> 0.99 (tau 1.445 -> 2.644), pi_loss_correct, beta 0.01"
+class DataError(ValueError):
+    """A malformed data file: the message names the figure and line, and the problem."""
 
 
-def ff_line(slug: str = "a3c-ff", label: str = "A3C FF", extra: str = "") -> Line:
-    """The A3C FF baseline of a figure (preset 13), with the flag the figure varies spelled out."""
-    return Line(slug, label, FF, f"{FF_AS_RUN} {extra}".strip(), FF_SOURCE)
+# The keys of the data file's tables, and their types; "?" marks an optional key.
+KEYS = {
+    "file": {"flags?": dict, "figure": list},
+    "figure": {"id": str, "caption": str, "thesis": str, "note?": str, "numbers?": dict,
+               "line": list, "plot?": list},
+    "line": {"slug": str, "label": str, "script": str, "flags": str, "source": str,
+             "samples?": list, "approximation?": str},
+    "plot": {"x": str, "bar_range?": list},
+}  # fmt: skip
+TYPES = {str: "a string", list: "a list", dict: "a table"}
+FRAGMENT = re.compile(r"\{(\w+)\}")  # {NAME} in a line's flags: NAME of the [flags] table
 
 
-def lpq(slug: str, label: str, distance: str, source: str, approximation: str = "") -> Line:
-    """An LPQ line of Figure 7.1 or 7.7: 16 prototypes per action, all competing, tau = 1."""
-    source += ": LPQ, ppa = nwp = 16, p0 = pN = 0.787 so tau = 1, no loss correction"
-    flags = f"--distance {distance} {LPQ_AS_RUN}"
-    return Line(slug, label, "a3c_lpq.py", flags, source, approximation=approximation)
+def table(entry: object, kind: str, where: str) -> dict:
+    """A table of the data file, checked against KEYS; its strings with every run of whitespace
+    (line breaks included) as one space."""
+    keys = {key.rstrip("?"): (type_, key[-1] != "?") for key, type_ in KEYS[kind].items()}
+    if not isinstance(entry, dict):
+        raise DataError(f"{where}: expected a table, got {entry!r}")
+    for key, value in entry.items():
+        if key not in keys:
+            raise DataError(f"{where}: unknown key {key!r} (a {kind} has {', '.join(keys)})")
+        if not isinstance(value, keys[key][0]):
+            raise DataError(f"{where}: {key} must be {TYPES[keys[key][0]]}, got {value!r}")
+    for key, (_, required) in keys.items():
+        if required and not entry.get(key):
+            raise DataError(f"{where}: no {key}")
+    return {key: " ".join(v.split()) if isinstance(v, str) else v for key, v in entry.items()}
 
 
-def glpq(slug: str, label: str, flags: str, source: str, **more) -> Line:
-    """A GLPQ line (as run, every one: --mu-form code)."""
-    return Line(slug, label, "a3c_glpq.py", flags, source, **more)
+def read_line(entry: object, where: str, fragments: dict[str, str]) -> Line:
+    line = table(entry, "line", where)
+    if Path(line["script"]).name != line["script"] or not (AGENTS / line["script"]).is_file():
+        raise DataError(f"{where}: script {line['script']!r} is not in {display(AGENTS)}/")
+    if line["slug"] != Path(line["slug"]).name or " " in line["slug"]:
+        raise DataError(f"{where}: slug {line['slug']!r} is not a plain folder name")
+    for name in FRAGMENT.findall(line["flags"]):
+        if name not in fragments:
+            raise DataError(f"{where}: flags name {{{name}}}, which [flags] does not define")
+    flags = FRAGMENT.sub(lambda match: fragments[match[1]], line["flags"])
+    try:
+        shlex.split(flags)
+    except ValueError as error:
+        raise DataError(f"{where}: flags are not shell words ({error}): {flags}") from None
+    samples = line.get("samples", [])
+    if not all(isinstance(sample, str) and all(sample.partition("=")) for sample in samples):
+        raise DataError(f"{where}: samples must be NAME=DIST strings, got {samples!r}")
+    return Line(**{**line, "flags": flags, "samples": tuple(samples)})
 
 
-FIGURES: tuple[Figure, ...] = (
-    Figure(
-        "fig6.3",
-        "Local weight sharing (A3C LWS) against the default A3C FF",
-        "LWS is comparable to A3C FF, and for learning rates above 1e-3 slightly better "
-        "(more robust to high learning rates).",
-        (
-            ff_line("default", "Default"),
-            Line(
-                "lws-t",
-                "LWS T",
-                "a3c_lws.py",
-                "--lws-kcps 3 --lws-centroids feature --lws-trainable --lws-centroid-init uniform "
-                f"{LWS_AS_RUN}",
-                "preset 21 (a3c_sisws, NN/SW@42815b8): 3 KCPs per layer, centroids U[0,1]^2 and "
-                "Sigma = I, both trainable, feature-wise; the label is read as LWS+T+FW (I); "
-                "lambda_V 1.0 (I)",
-            ),
-            Line(
-                "lws-s",
-                "LWS S",
-                "a3c_lws.py",
-                "--lws-kcps 4 --lws-centroid-init grid --lws-centroids group --no-lws-trainable "
-                f"{LWS_AS_RUN}",
-                "preset 22 (a3c_sisws_s, SW@42815b8): a fixed 2x2 grid of KCPs, group-wise; "
-                "lambda_V 1.0 (I)",
-            ),
-        ),
-        note="lws.sh's alternative lines LWS PF 48 / PF 64 / PF 64 M (presets 115-117: "
-        "group-wise, 64 second-layer maps, Mahalanobis) are not included; which set the thesis "
-        "figure shows is not recorded.",
-    ),
-    Figure(
-        "fig6.5",
-        "Spatial softmax (A3C SS) and what-and-where (A3C WW) against A3C FF",
-        "WW beats the other architectures except A3C FF, and is marginally worse than FF above "
-        "lr 1e-3; A3C SS TT beats A3C SS GT TT (read in the text as per-map against global "
-        "temperatures; as run, a fixed global tau against trainable per-map taus).",
-        (
-            ff_line(),
-            Line(
-                "ss",
-                "A3C SS",
-                "a3c_ss.py",
-                "--conv-layout ff --ss-temperature global --ss-trainable-temperature "
-                "--ss-initial-temperature 0.6 --vf-coef 0.5",
-                "preset 118 (a3c_ff_ss): one scalar trainable tau, init 0.6; conv 8x8/4, 4x4/2 "
-                "if run 06-24 to 06-28, else 5x5/3, 3x3/2 (--conv-layout final) (I)",
-            ),
-            Line(
-                "ss-tt",
-                "A3C SS TT",
-                "a3c_ss.py",
-                "--conv-layout ff --ss-temperature global --no-ss-trainable-temperature "
-                "--ss-initial-temperature 0.6 --vf-coef 0.5",
-                "preset 120: trainable_temp False, i.e. one fixed tau = 0.6 (the label "
-                "contradicts the code)",
-            ),
-            Line(
-                "ss-gt-tt",
-                "A3C SS GT TT",
-                "a3c_ss.py",
-                "--conv-layout ff --ss-temperature per-map --ss-trainable-temperature "
-                "--ss-initial-temperature 0.6 --vf-coef 0.5",
-                "preset 121: ss_temp_global True, passed as temp_pf, i.e. a trainable tau per "
-                "map (the flag is inverted, L/NN@31ec590)",
-            ),
-            Line(
-                "ww",
-                "A3C WW",
-                "a3c_ww.py",
-                "--conv-layout ff --ss-temperature global --ss-trainable-temperature "
-                "--ss-initial-temperature 0.6 --vf-coef 0.5",
-                "preset 119 (a3c_ff_ww): 32 ReLU + 32 spatial-softmax maps, one scalar "
-                "trainable tau, init 0.6; conv layout as for SS (I)",
-            ),
-        ),
-        note="SS's ss_epsilon 0.5 (in the as-run doc) has no flag here. The conv layout is an "
-        "inference from the dates: --conv-layout final for the thesis code's final network.",
-    ),
-    Figure(
-        "fig6.6",
-        "Gradient clipping: clip by value against global norm clipping",
-        "Clipping by value outperforms global norm clipping, mainly at lower learning rates.",
-        (
-            # "by value" as run: tf.clip_by_norm(grad, 40) per tensor, our --grad-clip-mode norm
-            ff_line("clip-by-value", "Clip by value", "--grad-clip-mode norm --grad-clip 40"),
-            Line(
-                "global-norm",
-                "Global norm clipping",
-                FF,
-                f"{FF_AS_RUN} --grad-clip-mode global-norm --grad-clip 21.3796",
-                "preset 31 (PS@6420f72): c_g = 21.3796, where the text says 25; lambda_V 1.0 (I)",
-            ),
-        ),
-    ),
-    Figure(
-        "fig6.7",
-        "ELU against the default ReLU in A3C FF",
-        "ELU is worse than ReLU, mainly for learning rates above 1e-3.",
-        (
-            ff_line("relu", "ReLU", "--activation relu"),
-            Line(
-                "elu",
-                "ELU",
-                FF,
-                f"{FF_AS_RUN} --activation elu",
-                "preset 4 (PS@5385cc5): ELU in all hidden layers; lambda_V 1.0 (I)",
-            ),
-        ),
-    ),
-    Figure(
-        "fig6.8",
-        "Weight initializations in A3C FF",
-        "The default (torch) initialization is best, substantially so in the mean over all "
-        "evaluations.",
-        (
-            # the thesis labels the torch init U(+-1/sqrt(fan_in)) "Glorot & Bengio"
-            ff_line("glorot-bengio", "Glorot & Bengio", "--weight-init torch"),
-            Line(
-                "he",
-                "He et al.",
-                FF,
-                f"{FF_AS_RUN} --weight-init he --bias-init 0",
-                "preset 42 (L@9342f15): variance_scaling_initializer() in all layers, zero "
-                "biases; lambda_V 1.0 (I)",
-                approximation="TF's variance_scaling_initializer() (truncated normal, fan-in) "
-                "as our --weight-init he: truncated normal std sqrt(2/fan_in); TF's exact "
-                "scale and truncation correction may differ",
-            ),
-            Line(
-                "sussillo-abbott",
-                "Sussillo & Abbott",
-                FF,
-                f"{FF_AS_RUN} --weight-init uniform-sqrt3 --bias-init 0",
-                "preset 66 (L@cfbcd6f): tflearn conv uniform_scaling, FC truncated_normal, zero "
-                "biases; lambda_V 1.0 (I)",
-                approximation="the FC layers ran tflearn's truncated_normal (its default std "
-                "0.02), approximated by uniform-sqrt3 like the convolutions",
-            ),
-        ),
-    ),
-    Figure(
-        "fig7.1",
-        "LPQ with different distance functions (16 prototypes per action, all competing)",
-        "Squared Euclidean is clearly best, followed by Manhattan; the others are considerably "
-        "worse.",
-        (
-            lpq("pearson", "Pearson", "pearson", "preset 96 (PS@7e344e2)"),
-            lpq("cosine", "Cosine", "cosine", "preset 97 (PS@7e344e2)"),
-            lpq("manhattan", "Manhattan", "manhattan", "preset 98 (PS@7e344e2)"),
-            lpq("euclidean", "Euclidean", "euclidean", "preset 99 (PS@7e344e2)"),
-            lpq(
-                "squared-euclidean",
-                "Squared Euclidean",
-                "squared-euclidean",
-                "preset 100 (PS@7e344e2)",
-            ),
-            lpq(
-                "inverse-squared-euclidean",
-                "Inverse Euclidean squared",
-                "inverse-squared-euclidean",
-                "preset 140 (inv_euc_sq, added in 95d250d, after c8e4a6c)",
-                approximation="as run 1/(0.001 + d^2) with the hot tau of about 2.58 (I); "
-                "a3c_lpq.py computes the text's -1/(1 + d^2) with tau = 1",
-            ),
-        ),
-        note="The caption names A3C FF, but the figure's launch script (presets 96-100) has no "
-        "A3C FF preset; none is run here.",
-    ),
-    Figure(
-        "fig7.2",
-        "GLPQ with 16, 32 or 64 prototypes per action against A3C FF",
-        "64 prototypes per action deteriorate performance; 16 and 32 are comparable.",
-        (
-            ff_line(),
-            glpq(
-                "ppa-32",
-                "|W|/|A| = 32",
-                f"{GLPQ_COLD} --prototypes-per-action 32",
-                f"preset 112 (PS@3e7ef86): {COLD_SOURCE}",
-            ),
-            glpq(
-                "ppa-64",
-                "|W|/|A| = 64",
-                f"{GLPQ_COLD} --prototypes-per-action 64",
-                f"preset 113 (PS@3e7ef86): {COLD_SOURCE}",
-            ),
-            glpq(
-                "ppa-16",
-                "|W|/|A| = 16",
-                f"{GLPQ_COLD} --prototypes-per-action 16",
-                f"preset 94 (PS@bba4954): {COLD_SOURCE}",
-            ),
-        ),
-    ),
-    Figure(
-        "fig7.3",
-        "GLPQ with competition sizes k = 4, 8, 16 (16 prototypes per action) against A3C FF",
-        "Roughly invariant to the competition size; in general greater k is best.",
-        (
-            ff_line(),
-            glpq(
-                "k-8",
-                "k=8",
-                f"{GLPQ_COLD} --prototypes-per-action 16 --competition-size 8",
-                "preset 107 (PS@f91d5a1): as preset 94, the 8 nearest per action compete",
-            ),
-            glpq(
-                "k-4",
-                "k=4",
-                f"{GLPQ_COLD} --prototypes-per-action 16 --competition-size 4",
-                "preset 108 (PS@f91d5a1): as preset 94, the 4 nearest per action compete",
-            ),
-            glpq(
-                "k-16",
-                "k=16",
-                f"{GLPQ_COLD} --prototypes-per-action 16",
-                f"preset 94 (PS@bba4954): {COLD_SOURCE}",
-            ),
-        ),
-    ),
-    Figure(
-        "fig7.5",
-        "GLPQ temperature configurations: tau = 1, tau(t), tau(t) with L_pi(tau), trainable",
-        "tau(t) alone is worse than tau = 1 or tau(t) with the 1/tau loss correction; with the "
-        "correction it ends marginally above tau = 1; the trainable tau used the correction too.",
-        (
-            glpq(
-                "tau-1",
-                "tau = 1",
-                "--temperature fixed --tau 1 --no-tau-loss-correction --prototypes-per-action 15 "
-                f"--competition-size 10 {GLPQ_AS_RUN}",
-                "preset 86 (96ea994): 15 prototypes per action, the 10 nearest competing; older "
-                "than any temperature code, so tau = 1 (I); no loss correction",
-            ),
-            glpq(
-                "tau-t",
-                "tau(t)",
-                # beta = 0, which the text does not mention
-                "--temperature cold --no-tau-loss-correction --ent-coef 0 "
-                f"--prototypes-per-action 16 {GLPQ_AS_RUN}",
-                "preset 93 (PS@aab9541): cold p 0.9 -> 0.99, beta = 0, no loss correction",
-            ),
-            glpq(
-                "tau-t-corrected",
-                "tau(t), L_pi(tau)",
-                f"{GLPQ_COLD} --prototypes-per-action 16",
-                f"preset 94 (PS@bba4954): {COLD_SOURCE}",
-            ),
-            glpq(
-                "tau-trainable",
-                "tau trainable",
-                f"--temperature trainable --tau 1.445 --tau-parametrization plain {CORRECTED} "
-                f"--prototypes-per-action 16 {GLPQ_AS_RUN}",
-                "preset 106: a plain variable tau initialised at 0.5 ln(2 * 0.9 / 0.1) = 1.445, "
-                "pi_loss_correct",
-            ),
-        ),
-    ),
-    Figure(
-        "fig7.6",
-        "GLPQ temperature schedules cold, hot and searing against A3C FF",
-        "Bars (mean final-5 score over lr in [1e-5, 1e-2], 1M steps, 12 workers): A3C FF 0.73, "
-        "GLPQ hot 0.78, cold 0.77, searing 0.81; hot and searing are best below lr 10^-3.5.",
-        (
-            ff_line(),
-            glpq(
-                "glpq-hot",
-                "GLPQ hot",
-                f"{GLPQ_HOT} --prototypes-per-action 16",
-                "preset 126 (PS@160314f): lpq_hot, tau = 0.5 ln(p (16 * 3 - 1) / (1 - p)), "
-                "p 0.9 -> 0.99 (3.02 -> 4.22), pi_loss_correct",
-            ),
-            glpq(
-                "glpq-cold",
-                "GLPQ cold",
-                f"{GLPQ_COLD} --prototypes-per-action 16",
-                f"preset 94 (PS@bba4954): {COLD_SOURCE}",
-            ),
-            glpq(
-                "glpq-searing",
-                "GLPQ searing",
-                f"--temperature searing {CORRECTED} {GLPQ_AS_RUN} --prototypes-per-action 16",
-                "preset 131 (PS@a0f958e): hot with p 0.95 -> 0.999 (3.40 -> 5.38), pi_loss_correct",
-            ),
-        ),
-        numbers=(("A3C FF", 0.73), ("GLPQ hot", 0.78), ("GLPQ cold", 0.77), ("GLPQ searing", 0.81)),
-    ),
-    Figure(
-        "fig7.7",
-        "GLPQ (hot) against LPQ, both squared Euclidean, 16 prototypes per action, all competing",
-        "GLPQ beats LPQ marginally but consistently, most at the extremes of the learning rate.",
-        (
-            glpq(
-                "glpq",
-                "GLPQ",
-                f"{GLPQ_HOT} --prototypes-per-action 16",
-                "preset 126 (hot), as in Figure 7.6",
-            ),
-            lpq("lpq", "LPQ", "squared-euclidean", "preset 100 (PS@7e344e2), as in Figure 7.1"),
-        ),
-    ),
-    Figure(
-        "figA.1",
-        "Global norm clipping bound c_g and learning rate, sampled jointly (A3C FF)",
-        "Only a small area of the search space gives good results; c_g = 25 (about 10^1.4) was "
-        "chosen from it.",
-        (
-            Line(
-                "global-norm",
-                "Global norm clipping",
-                FF,
-                f"{FF_AS_RUN} --grad-clip-mode global-norm",
-                "preset 12 (PS): global_clipping with c_g ~ logU[0.5, 40] (upper bound 2.0 "
-                "before aa67475); lambda_V 1.0 (I)",
-                samples=("grad-clip=loguniform:0.5:40",),
-            ),
-        ),
-        plots=(Plot(), Plot("grad-clip", (0.5, 40.0), "-grad-clip")),
-        note="The thesis's plot is 2-D (c_g against lr); here the score against each of them.",
-    ),
-    Figure(
-        "figA.2",
-        "RMSprop against Adam (A3C FF)",
-        "RMSprop outperforms Adam substantially.",
-        (
-            ff_line("rmsprop", "RMSprop", "--optimizer rmsprop"),
-            Line(
-                "adam",
-                "Adam",
-                FF,
-                f"{FF_AS_RUN} --optimizer adam --adam-beta1 0.9 --adam-beta2 0.999 --optim-eps 0.1",
-                "preset 10: shared Adam, beta1 0.9, beta2 0.999 (the text says 0.99), eps inside "
-                "the root, same norm-40 clipping; lambda_V 1.0 (I)",
-                approximation="eps inside the root was 1e-8 for runs launched before 2017-03-09 "
-                "and 0.1 after (I); this line uses 0.1 (--optim-eps 1e-8 for the other)",
-            ),
-        ),
-    ),
-    Figure(
-        "figA.3",
-        "Bias initialization: 'Torch' against a constant 0.01 (A3C FF)",
-        "No significant improvement from biases at 0.01.",
-        (
-            # both presets ran He weights (I): the bias is what the figure varies
-            Line(
-                "torch",
-                "Torch",
-                FF,
-                f"{FF_AS_RUN} --weight-init he --bias-init 0",
-                "preset 42, the He-init preset of Figure 6.8 (contradicts the 'Torch' label): "
-                "He weights, zero biases; lambda_V 1.0 (I)",
-                approximation="He init as in Figure 6.8 (TF's variance_scaling_initializer() as "
-                "our --weight-init he)",
-            ),
-            Line(
-                "bias-0.01",
-                "xi = 0.01",
-                FF,
-                f"{FF_AS_RUN} --weight-init he --bias-init 0.01",
-                "preset 55 (PS@e818f1a, 05-06): plain a3c_ff right after all biases became "
-                "0.01; weights were He until 05-09, torch after (I); lambda_V 1.0 (I)",
-                approximation="the weights are an inference from dates (He until 05-09, then "
-                "torch: --weight-init torch --bias-init 0.01)",
-            ),
-        ),
-    ),
-    Figure(
-        "figC.1",
-        "Temperature sweep of 'the default LPQ' (as run: GLPQ with a fixed tau)",
-        "No statement beyond the caption: the lines are prototype initializations, random "
-        "uniform and zero clipping.",
-        (
-            glpq(
-                "random-uniform",
-                "Random uniform",
-                f"--temperature fixed --no-tau-loss-correction {GLPQ_AS_RUN} "
-                "--prototypes-per-action 16 --prototype-init uniform",
-                C1_SOURCE,
-                samples=("tau=loguniform:0.01:100",),
-            ),
-            glpq(
-                "zero-clipping",
-                "Zero clipping",
-                f"--temperature fixed --no-tau-loss-correction {GLPQ_AS_RUN} "
-                "--prototypes-per-action 16 --prototype-init uniform-clipped",
-                C1_SOURCE,
-                samples=("tau=loguniform:0.01:100",),
-                approximation="no as-run script has a 'zero clipping' line; U(+-1/16) with "
-                "negatives set to 0 is our reading. The candidate preset 138 (beta 0, "
-                "relu(truncated normal) prototypes, loss correction, tau ~ U[1, 256]) has no "
-                "flag for its prototype init",
-            ),
-        ),
-        plots=(Plot(), Plot("tau", (0.01, 100.0), "-tau")),
-        note="The thesis plots the score against tau; the learning rate is sampled as well.",
-    ),
-)
+def read_figure(entry: object, file: str, index: int, fragments: dict[str, str]) -> Figure:
+    figure = table(entry, "figure", f"{file}: figure {index}")
+    where = f"{file}: figure {figure['id']}"
+    lines = []
+    for i, line in enumerate(figure["line"], 1):
+        label = line.get("label") if isinstance(line, dict) else None
+        at = f"{where}, line {i}" + (f" ({label})" if label else "")
+        lines.append(read_line(line, at, fragments))
+    for name in ("slug", "label"):
+        values = [getattr(line, name) for line in lines]
+        for value in values:
+            if values.count(value) > 1:
+                raise DataError(f"{where}: two lines with {name} {value!r}")
+    numbers = tuple(figure.get("numbers", {}).items())
+    for label, value in numbers:
+        if label not in [line.label for line in lines]:
+            raise DataError(f"{where}: numbers name {label!r}, which is no line's label")
+        if type(value) not in (int, float):
+            raise DataError(f"{where}: numbers: {label!r} = {value!r} is not a number")
+    plots = [Plot()]  # every figure's plot against the learning rate, then one per [[plot]]
+    for i, entry in enumerate(figure.get("plot", []), 1):
+        plot, at = table(entry, "plot", f"{where}, plot {i}"), f"{where}, plot {i}"
+        if not all(plot["x"] in line.sample_names() for line in lines):
+            raise DataError(f"{at}: x is {plot['x']!r}, which not every line samples")
+        bars = plot.get("bar_range")
+        if bars is not None and (len(bars) != 2 or any(type(v) not in (int, float) for v in bars)):
+            raise DataError(f"{at}: bar_range must be [LOW, HIGH], got {bars!r}")
+        plots.append(Plot(plot["x"], bars and (float(bars[0]), float(bars[1])), f"-{plot['x']}"))
+    texts = {key: figure.get(key, "") for key in ("id", "caption", "thesis", "note")}
+    numbers = tuple((label, float(value)) for label, value in numbers)
+    return Figure(**texts, lines=tuple(lines), numbers=numbers, plots=tuple(plots))
+
+
+def load_figures(path: Path = DATA) -> tuple[Figure, ...]:
+    """The figures of a data file (thesis_figures.toml), checked; a DataError if malformed."""
+    file = display(path)
+    try:
+        data = table(tomllib.loads(path.read_text(encoding="utf-8")), "file", file)
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        raise DataError(f"{file}: {error}") from None
+    fragments = data.get("flags", {})
+    for name, value in fragments.items():
+        if not isinstance(value, str):
+            raise DataError(f"{file}: [flags] {name} must be a string, got {value!r}")
+        fragments[name] = " ".join(value.split())
+    figures = [read_figure(entry, file, i, fragments) for i, entry in enumerate(data["figure"], 1)]
+    ids = [figure.id for figure in figures]
+    for id in ids:
+        if ids.count(id) > 1:
+            raise DataError(f"{file}: two figures with id {id!r}")
+    return tuple(figures)
+
+
+try:
+    FIGURES = load_figures()
+except DataError as error:
+    if __name__ != "__main__":
+        raise
+    print(f"thesis_figures.py: error: {error}", file=sys.stderr)
+    raise SystemExit(2) from None
 FIGURE_IDS = tuple(figure.id for figure in FIGURES)
 BY_ID = {figure.id: figure for figure in FIGURES}
 
@@ -566,12 +251,6 @@ def figure_id(text: str) -> str | None:
             break
     key = f"fig{key.upper()}"
     return key if key in BY_ID else None
-
-
-def display(path: Path) -> str:
-    """A path as the commands show it: relative to the working directory when inside it."""
-    relative = os.path.relpath(path)
-    return relative if not relative.startswith("..") else str(path)
 
 
 def sweep_command(figure: Figure, line: Line, options: argparse.Namespace, runs: int) -> list[str]:

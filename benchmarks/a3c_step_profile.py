@@ -5,19 +5,22 @@
                                           [--default-malloc]
 
 One process and one torch thread run agents/a3c_ff.py's own `worker` loop (sync, act up to t_max
-steps, one batched forward and backward, clip, shared RMSprop step) with a PhaseTimer from
-agents/a3c_runtime.py, which the loop calls between its phases (training runs pass none, at no
-cost per step). "sync" includes the loop's bookkeeping. The phases' shares are what matters;
-absolute times depend on the machine and its load. "env step" is the emulator's (or Catch's)
-share: the vector env's step, preprocessing and frame stack included.
+steps, one batched forward and backward, clip, shared RMSprop step), unchanged: the phases are
+timed from outside, by wrapping what the loop calls (the vector env's step, the network's
+forward, torch.autograd.grad, the script's clip_gradients, the shared optimizer's step), so the
+loop carries no instrumentation. A forward in inference mode is acting, one with gradients the
+update's. "other" is the rest of the loop: the parameter sync, the n-step returns and the loss,
+sampling, copying frames and bookkeeping. The phases' shares are what matters; absolute times
+depend on the machine and its load. "env step" is the emulator's (or Catch's) share: the vector
+env's step, preprocessing and frame stack included.
 
-It then shows how the acting forward's time depends on its place in the rollout (the network
-class's forward is wrapped to time each call made in inference mode), next to the same forward
-run back to back on one state and after a pause (sleeping) of a few milliseconds: on a shared
-host the first forwards after the learning phase run several times slower than warm ones, because
-the caches lose the forward's code and data while the worker is elsewhere, even asleep.
-The first line also gives the page faults per step; --default-malloc leaves glibc's malloc as
-it is instead of setting it as the workers do (a3c_runtime.configure_process), to compare.
+It then shows how the acting forward's time depends on its place in the rollout, next to the
+same forward run back to back on one state and after a pause (sleeping) of a few milliseconds:
+on a shared host the first forwards after the learning phase run several times slower than warm
+ones, because the caches lose the forward's code and data while the worker is elsewhere, even
+asleep. The first line also gives the page faults per step; --default-malloc leaves glibc's
+malloc as it is instead of setting it as the workers do
+(a3c_runtime.supervision.configure_process), to compare.
 """
 
 from __future__ import annotations
@@ -29,17 +32,19 @@ import statistics
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
+import a3c_runtime as runtime
 import torch
 
 AGENTS = Path(__file__).resolve().parents[1] / "agents"
 SCRIPT = AGENTS / "a3c_ff.py"
+PHASES = ("act forward", "env step", "learn forward", "backward", "clip", "optimizer", "other")
 NETWORK_PHASES = ("act forward", "learn forward", "backward")  # the network's own kernels
 
 
 def load_a3c():
-    sys.path.insert(0, str(AGENTS))  # the script imports its sibling a3c_runtime
     spec = importlib.util.spec_from_file_location("a3c_ff", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     sys.modules["a3c_ff"] = module  # dataclasses look their module up by name
@@ -47,57 +52,84 @@ def load_a3c():
     return module
 
 
-def profile(a3c, seconds: float, **flags) -> tuple[int, dict[str, float]]:
-    """Run the worker loop for `seconds` with the given Args `flags`; returns (env steps,
-    seconds spent in each phase)."""
-    import a3c_runtime as runtime
-    import torch.multiprocessing as mp
+class PhaseClock:
+    """Seconds spent in each phase, from wrappers around what the loop calls."""
 
+    def __init__(self) -> None:
+        self.spent = dict.fromkeys(PHASES, 0.0)
+        self.acting: list[list[float]] = []  # acting[k]: the k-th forward of each rollout
+        self.position = 0
+
+    def timed(self, phase: str, function: Callable) -> Callable:
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.spent[phase] += time.perf_counter() - start
+
+        return wrapper
+
+    def timed_forward(self, forward: Callable) -> Callable:
+        """The network's forward: acting (inference mode, also timed by its place in the
+        rollout) or the update's."""
+
+        def wrapper(model, *args, **kwargs):
+            start = time.perf_counter()
+            result = forward(model, *args, **kwargs)
+            seconds = time.perf_counter() - start
+            if torch.is_inference_mode_enabled():
+                self.spent["act forward"] += seconds
+                if self.position == len(self.acting):
+                    self.acting.append([])
+                self.acting[self.position].append(seconds)
+                self.position += 1
+            else:
+                self.spent["learn forward"] += seconds
+                self.position = 0
+            return result
+
+        return wrapper
+
+
+def profile(a3c, seconds: float, **flags) -> tuple[int, float, PhaseClock]:
+    """Run the worker loop for `seconds` with the given Args `flags`; returns (env steps, the
+    loop's seconds, the phases' clock)."""
     args = runtime.resolve_defaults(a3c.Args(num_workers=1, **flags))
     args.total_timesteps = 10**12  # the clock ends the loop
-    env = a3c.make_env(args.env)
-    num_actions = env.action_space.n
-    env.close()
+    num_actions = runtime.probe_env(a3c.make_env, args.env)
     network = a3c.AGENT.build_network(num_actions, args)
-    shared = runtime.Shared(network, args, mp.get_context("fork"))
-    timer = runtime.PhaseTimer()
+    shared = runtime.Shared(network, args, runtime.supervision.FORK)
+    clock = PhaseClock()
+    make_vector_env, loop_start = a3c.make_vector_env, []
+
+    def timed_vector_env(env_id: str, num_envs: int):
+        envs = make_vector_env(env_id, num_envs)
+        envs.step = clock.timed("env step", envs.step)
+        loop_start.append(time.perf_counter())  # building 16 emulators is not a phase
+        return envs
+
+    a3c.make_vector_env = timed_vector_env
+    a3c.ActorCritic.forward = clock.timed_forward(a3c.ActorCritic.forward)
+    a3c.clip_gradients = clock.timed("clip", a3c.clip_gradients)
+    shared.optimizer.step = clock.timed("optimizer", shared.optimizer.step)
+    grad = torch.autograd.grad
+    torch.autograd.grad = clock.timed("backward", grad)
     stop = threading.Timer(seconds, shared.stop.set)
     stop.start()
-    a3c.worker(0, shared, args, timer)
-    stop.cancel()
-    return shared.global_step(), timer.spent
-
-
-def time_acting_forwards(a3c) -> list[list[float]]:
-    """Wrap the script's network class so that every acting forward (made in inference mode) is
-    timed; returns the seconds of the k-th forward of each rollout in entry k. A forward outside
-    inference mode (the learning pass) ends the rollout."""
-    by_position: list[list[float]] = []
-    position = 0
-    forward = a3c.ActorCritic.forward
-
-    def timed_forward(self, obs):  # noqa: ANN001, ANN202 (the network's own signature)
-        nonlocal position
-        if not torch.is_inference_mode_enabled():
-            position = 0
-            return forward(self, obs)
-        start = time.perf_counter()
-        result = forward(self, obs)
-        if position == len(by_position):
-            by_position.append([])
-        by_position[position].append(time.perf_counter() - start)
-        position += 1
-        return result
-
-    a3c.ActorCritic.forward = timed_forward
-    return by_position
+    try:
+        a3c.worker(0, shared, args)
+    finally:
+        stop.cancel()
+        torch.autograd.grad = grad
+    total = time.perf_counter() - loop_start[0]
+    clock.spent["other"] = total - sum(clock.spent.values())
+    return shared.global_step(), total, clock
 
 
 def forward_after_pause(a3c, env_id: str, pauses_ms: tuple[float, ...]) -> dict[float, float]:
     """Median seconds of one acting forward (batch 1, a fresh network) after sleeping each of
     `pauses_ms` (0: back to back), 40 times each."""
-    import a3c_runtime as runtime
-
     args = runtime.resolve_defaults(a3c.Args(num_workers=1, env=env_id))
     env = a3c.make_env(env_id)
     obs = torch.from_numpy(env.reset(seed=0)[0])[None]
@@ -141,18 +173,14 @@ def main() -> None:
 
     flags = {"env": opts.env, "envs_per_worker": opts.envs_per_worker, "precision": opts.precision}
     a3c = load_a3c()
-    import a3c_runtime  # the script's sibling, importable once the script is loaded
-
-    a3c_runtime.KEEP_FREED_MEMORY = not opts.default_malloc
-    a3c_runtime.configure_process()  # as the workers do
-    acting = time_acting_forwards(a3c)
+    runtime.configure_process(keep_freed_memory=not opts.default_malloc)  # as the workers do
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     try:
-        steps, spent = profile(a3c, opts.seconds, **flags)
-    except a3c.UsageError as e:
+        steps, total, clock = profile(a3c, opts.seconds, **flags)
+    except runtime.UsageError as e:
         parser.error(str(e))
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
-    total = sum(spent.values())
+    spent = clock.spent
     print(f"{opts.env}, K={opts.envs_per_worker}, {opts.precision}: {steps:,} env steps, "
           f"{steps / total:,.0f} steps/s in one process, {faults / steps:.1f} page faults per "
           "step (building the env and network included)")  # fmt: skip
@@ -165,6 +193,7 @@ def main() -> None:
         f"phase free, at most {steps / network:,.0f} steps/s in one process"
     )
     # the acting forward by its place in the rollout, against the same forward warm
+    acting = clock.acting
     rollouts = len(acting[0])
     shown = [k for k, times in enumerate(acting) if len(times) >= rollouts / 2]
     medians = ", ".join(f"{statistics.median(acting[k]) * 1e6:.0f}" for k in shown)

@@ -13,7 +13,9 @@ the same run. Every script runs at every setting, each value of --envs-per-worke
 --precision (K = 1 is the thesis's algorithm) and each --replay: off turns the scripts'
 ActivationReplay off (the learning pass recomputes the forward), to measure what it saves.
 --default-malloc leaves glibc's malloc settings in the scripts' workers (which otherwise keep
-freed memory, a3c_runtime.configure_process), to measure what that saves.
+freed memory, a3c_runtime.supervision.configure_process), to measure what that saves. Both
+switches act from outside the scripts: they replace the runtime's function in this process
+before the workers fork.
 With --rounds R the baseline and the scripts take turns R times and the means are reported, so
 that slow drifts of a shared machine's speed fall on all of them alike.
 
@@ -28,6 +30,7 @@ printed before each measurement.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import inspect
 import os
@@ -38,6 +41,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import a3c_runtime
+import a3c_runtime.supervision as supervision
 import numpy as np
 import torch
 import torch.multiprocessing as mp
@@ -48,8 +53,10 @@ import catch_env  # noqa: F401  (registers Catch-v0)
 AGENTS = Path(__file__).resolve().parents[1] / "agents"
 FF_SCRIPT = AGENTS / "a3c_ff.py"
 PRECISIONS = ("auto", "fp32", "bf16", "bf16-learn")  # --precision of the scripts
-sys.path.insert(0, str(AGENTS))  # the scripts import their sibling a3c_runtime
-import a3c_runtime  # noqa: E402
+
+
+def no_replay(model, rollout_frames) -> None:
+    """--replay off: the scripts' replay_activations does nothing, every layer stays plain."""
 
 
 def load_script(path: Path):
@@ -219,7 +226,7 @@ def run_script(
 ) -> tuple[float, float, float]:
     """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers, the
     page faults per step of the run's processes)."""
-    a3c_runtime.ActivationReplay.enabled = replay  # the forked workers inherit it
+    a3c.replay_activations = a3c_runtime.replay_activations if replay else no_replay
     with tempfile.TemporaryDirectory() as run_dir:
         args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir, env=env,
                         log_interval=max(5.0, seconds / 4), envs_per_worker=envs_per_worker,
@@ -227,7 +234,7 @@ def run_script(
         args.total_timesteps = 10**9  # the time limit ends the run
         cpu_before, faults_before = children_cpu_seconds(), children_page_faults()
         summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
-    a3c_runtime.ActivationReplay.enabled = True
+    a3c.replay_activations = a3c_runtime.replay_activations
     per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
     faults = (children_page_faults() - faults_before) / summary["global_step"]
     return summary["sps"], per_cpu, faults
@@ -267,7 +274,10 @@ def main() -> None:
         if not path.is_file():
             parser.error(f"no such script: {path} (the agents are agents/a3c_*.py)")
     torch.set_num_threads(1)
-    a3c_runtime.KEEP_FREED_MEMORY = not opts.default_malloc  # the forked workers inherit it
+    if opts.default_malloc:  # the forked workers inherit it
+        supervision.configure_process = functools.partial(
+            supervision.configure_process, keep_freed_memory=False
+        )
     paths = [FF_SCRIPT] + [p.resolve() for p in opts.scripts if p.resolve() != FF_SCRIPT]
     scripts = {path.stem: load_script(path) for path in dict.fromkeys(paths)}
     a3c = scripts["a3c_ff"]

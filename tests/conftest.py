@@ -1,23 +1,27 @@
-"""Shared helpers of the agent tests: load a script by path, run it as a subprocess, tiny runs.
+"""Shared helpers and fixtures of the tests: load an agent script by path, run it as a
+subprocess, tiny runs, a worker's one-thread torch, a script's main() in process.
 
-The agent scripts import agents/a3c_runtime.py as a sibling module (the script's folder is on
-sys.path when it runs by path); the agents folder goes on sys.path here so that scripts loaded
-with importlib find it too."""
+The scripts import the a3c_runtime package, installed with the agents distribution
+(pip install -e ./agents); running one by path also finds it beside the script."""
 
 from __future__ import annotations
 
 import csv
 import importlib.util
+import multiprocessing
 import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
 
+import a3c_runtime as runtime
+import pytest
+import torch
+
 ROOT = Path(__file__).resolve().parents[1]
 AGENTS = ROOT / "agents"
-if str(AGENTS) not in sys.path:
-    sys.path.insert(0, str(AGENTS))
 
+FORK = multiprocessing.get_context("fork")
 SCRIPTS = ("a3c_ff", "a3c_lws", "a3c_ss", "a3c_ww", "a3c_lstm", "a3c_lpq", "a3c_glpq")
 # a tiny run: 2 workers, 5 evaluation episodes, a progress line every second
 TINY = ["--num-workers", "2", "--eval-episodes", "5", "--log-interval", "1"]
@@ -52,3 +56,32 @@ def read_evaluations(run_dir: Path) -> list[dict]:
 
 def evaluation_steps(run_dir: Path) -> list[int]:
     return [int(row["global_step"]) for row in read_evaluations(run_dir)]
+
+
+def tiny_args(module: ModuleType, **flags):
+    """A script's Args for one worker, defaults resolved."""
+    return runtime.resolve_defaults(module.Args(num_workers=1, **flags))
+
+
+def shared_for(module: ModuleType, args, num_actions: int = 3) -> runtime.Shared:
+    """The Shared of a run of the script with these Args, in this process."""
+    return runtime.Shared(module.AGENT.build_network(num_actions, args), args, FORK)
+
+
+@pytest.fixture
+def one_thread():
+    """A worker's torch: one thread (run_process sets it in a real run)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def main_exit(module: ModuleType, argv: list[str], monkeypatch, capsys) -> tuple[int, str]:
+    """Run the script's main() in process, as `python agents/<script>.py *argv` would."""
+    monkeypatch.setattr(sys, "argv", [f"{module.__name__}.py", *argv])
+    try:
+        code = module.main()
+    except SystemExit as e:  # tyro's own errors
+        code = e.code
+    return code, capsys.readouterr().err

@@ -1,6 +1,6 @@
 """Unit tests of agents/a3c_ff.py's algorithm: the loss, init and the network, against
 hand-computed values (n-step returns and sampling: tests/test_batched_actors.py; the runtime's
-pieces: tests/test_a3c_runtime.py)."""
+pieces: tests/test_runtime_*.py)."""
 
 import math
 

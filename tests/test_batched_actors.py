@@ -8,8 +8,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from conftest import SCRIPTS, TINY, evaluation_steps, load_script, run_script
-from test_a3c_runtime import one_thread, shared_for, tiny_args  # noqa: F401  (one_thread: fixture)
+from conftest import SCRIPTS, TINY, evaluation_steps, load_script, run_script, shared_for, tiny_args
 
 
 @pytest.fixture(scope="module")
@@ -122,7 +121,7 @@ def test_lstm_episode_starts_restart_each_env_from_the_zero_state():
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_worker_with_k_envs_learns_in_process(name, one_thread):  # noqa: F811
+def test_worker_with_k_envs_learns_in_process(name, one_thread):
     """K = 4 on Catch: the 4 episodes end together after 15 steps, so with t_max 20 each update
     holds 4 x 15 states, and every parameter learns."""
     module = load_script(name)
@@ -144,7 +143,7 @@ def test_worker_with_k_envs_learns_in_process(name, one_thread):  # noqa: F811
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_worker_with_k_envs_ends_a_rollout_where_every_episode_ends(name, one_thread):  # noqa: F811
+def test_worker_with_k_envs_ends_a_rollout_where_every_episode_ends(name, one_thread):
     """t_max 8 against Catch's 15-step episodes, which end together in the K envs: rollouts of
     8 steps that bootstrap from V(s_8), then of 7 that end with every episode (as the thesis's
     K = 1 rollout ends with its episode): 3 x (8 + 7 + 8 + 7 + 8) = 114 steps from 96 asked."""

@@ -124,7 +124,9 @@ def test_wheels_carry_the_license_and_index_metadata(tmp_path: Path) -> None:
     source = tmp_path / "src"
     ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
     shutil.copytree(ROOT / "catch_env", source / "catch_env", ignore=ignore)
-    (source / "agents").mkdir()
+    shutil.copytree(
+        ROOT / "agents" / "a3c_runtime", source / "agents" / "a3c_runtime", ignore=ignore
+    )
     for folder, _ in PROJECTS:
         target = source / folder.relative_to(ROOT)
         for name in ("pyproject.toml", "LICENSE", pyproject(folder)["project"]["readme"]):
@@ -158,3 +160,9 @@ def test_wheels_carry_the_license_and_index_metadata(tmp_path: Path) -> None:
             assert f"Project-URL: {label}, {url}" in headers
         assert f"Keywords: {','.join(project['keywords'])}" in headers
         assert body.strip() == long_description(folder)[1].strip()
+    # the agents' run machinery is an importable package of the agents wheel
+    runtime = {p.name for p in (ROOT / "agents" / "a3c_runtime").glob("*.py")}
+    (agents_wheel,) = wheels.glob("agents-*.whl")
+    with zipfile.ZipFile(agents_wheel) as archive:
+        packaged = {Path(n).name for n in archive.namelist() if n.startswith("a3c_runtime/")}
+    assert "__init__.py" in runtime and packaged == runtime

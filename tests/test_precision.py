@@ -7,13 +7,12 @@ import warnings
 import a3c_runtime as runtime
 import pytest
 import torch
-from conftest import SCRIPTS, TINY, load_script, read_evaluations, run_script
-from test_a3c_runtime import one_thread, shared_for, tiny_args  # noqa: F401  (one_thread: fixture)
+from conftest import SCRIPTS, TINY, load_script, read_evaluations, run_script, shared_for, tiny_args
 
 
 @pytest.mark.parametrize("precision", ["bf16", "bf16-learn"])
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_bf16_worker_learns_in_process_with_float32_weights(name, precision, one_thread):  # noqa: F811
+def test_bf16_worker_learns_in_process_with_float32_weights(name, precision, one_thread):
     module = load_script(name)
     args = tiny_args(module, total_timesteps=60, t_max=5, precision=precision)
     shared = shared_for(module, args)
@@ -68,7 +67,7 @@ def test_each_forward_pass_runs_in_its_precision(
     precision,
     acting,
     learning,
-    one_thread,  # noqa: F811
+    one_thread,
     monkeypatch,
 ):
     """The worker's acting passes (inference mode) and learning passes (with autograd) are
@@ -88,50 +87,6 @@ def test_each_forward_pass_runs_in_its_precision(
     acting_calls = {autocast for inference, autocast in calls if inference}
     learning_calls = {autocast for inference, autocast in calls if not inference}
     assert acting_calls == {acting} and learning_calls == {learning}, calls
-
-
-def test_autocast_contexts_need_a_resolved_precision():
-    with pytest.raises(ValueError, match="unresolved --precision 'auto'"):
-        runtime.autocast_contexts("auto")
-
-
-@pytest.mark.parametrize("k", [1, 4])
-def test_auto_precision_is_bf16_for_batches_where_the_cpu_has_it(k, monkeypatch, capsys):
-    a3c = load_script("a3c_ff")
-    monkeypatch.setattr(runtime, "native_bf16", lambda: True)
-    resolved = runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision
-    assert resolved == ("bf16-learn" if k == 1 else "bf16")  # one state acts faster in fp32
-    monkeypatch.setattr(runtime, "native_bf16", lambda: False)
-    assert runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision == "fp32"
-    for explicit in ("fp32", "bf16", "bf16-learn"):
-        assert runtime.resolve_defaults(a3c.Args(precision=explicit)).precision == explicit
-    assert capsys.readouterr().err.count("warning") == 2  # the two bf16 ones, emulated here
-
-
-def test_bf16_without_native_support_warns_in_one_line(monkeypatch, capsys):
-    a3c = load_script("a3c_ff")
-    monkeypatch.setattr(runtime, "native_bf16", lambda: False)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        runtime.resolve_defaults(a3c.Args(precision="fp32"))
-        assert capsys.readouterr().err == ""  # fp32 never warns
-        runtime.resolve_defaults(a3c.Args(precision="bf16"))
-    err = capsys.readouterr().err
-    assert err.startswith("warning: --precision bf16") and err.count("\n") == 1, err
-    runtime.resolve_defaults(a3c.Args(precision="bf16-learn"))
-    err = capsys.readouterr().err
-    assert err.startswith("warning: --precision bf16-learn") and err.count("\n") == 1, err
-    monkeypatch.setattr(runtime, "native_bf16", lambda: True)
-    runtime.resolve_defaults(a3c.Args(precision="bf16"))
-    assert capsys.readouterr().err == ""
-
-
-def test_native_bf16_reads_torchs_cpu_capabilities(monkeypatch):
-    assert isinstance(runtime.native_bf16(), bool)
-    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: {"avx512_bf16": False, "avx2": True})
-    assert runtime.native_bf16() is False
-    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: {"amx_bf16": True})
-    assert runtime.native_bf16() is True
 
 
 @pytest.mark.slow

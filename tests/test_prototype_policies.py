@@ -355,7 +355,7 @@ def test_bad_head_flags_are_usage_errors(lpq, glpq, name, flags):
 
 
 # ---------------------------------------------------------------------------------------------
-# End to end, tiny budgets (the flags of tests/test_a3c_ff.py)
+# End to end, tiny budgets (the flags of tests/test_runtime_a3c.py)
 # ---------------------------------------------------------------------------------------------
 def run(name: str, *flags: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return run_script(name, *flags, timeout=timeout)

@@ -66,3 +66,79 @@ def test_readme_links_to_results_that_exist():
     assert images and paths
     missing = [path for path in images + paths if not (ROOT / path.rstrip("/.")).exists()]
     assert not missing, f"the README names files that are not here: {missing}"
+
+
+README_MAX_LINES = 200
+DOCS = ROOT / "docs"
+# The thesis notes are kept as written (they quote the thesis code's own dates).
+DOCS_AS_WRITTEN = {"thesis-notes.md", "thesis-figures-as-run.md"}
+# A measurement's date and conditions belong in its results folder's COMMAND.txt.
+DATED_NARRATIVE = re.compile(
+    r"\b20[2-9]\d-\d\d-\d\d\b|\b\d\d:\d\d UTC\b|\bthis (?:morning|afternoon|evening)\b"
+    r"|\bfast day\b|\btoday(?:'s)?\b|\b(?:since |before )?issue \d+\b",
+    re.IGNORECASE,
+)
+
+
+def docs_pages() -> list[Path]:
+    return sorted(path for path in DOCS.rglob("*.md"))
+
+
+def test_readme_is_a_short_front_door():
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines"
+
+
+@pytest.mark.parametrize(
+    "page",
+    [ROOT / "README.md"] + [path for path in docs_pages() if path.name not in DOCS_AS_WRITTEN],
+    ids=lambda path: str(path.relative_to(ROOT)),
+)
+def test_no_dated_narrative(page):
+    found = [
+        f"line {number}: {match.group(0)!r}"
+        for number, line in enumerate(page.read_text().splitlines(), 1)
+        for match in DATED_NARRATIVE.finditer(line)
+    ]
+    assert not found, (
+        f"{page.relative_to(ROOT)}: dated narrative (move it to a COMMAND.txt): {found}"
+    )
+
+
+def relative_links(text: str) -> list[str]:
+    """The targets of a Markdown page's links and images that point into the repository
+    (no scheme, not a bare anchor), without their anchors."""
+    targets = re.findall(r"!?\[[^\]]*\]\(([^)\s]+)\)", text)
+    return [
+        target.split("#")[0]
+        for target in targets
+        if not re.match(r"[a-z][a-z0-9+.-]*:", target) and not target.startswith("#")
+    ]
+
+
+@pytest.mark.parametrize("page", docs_pages(), ids=lambda path: str(path.relative_to(ROOT)))
+def test_docs_links_exist(page):
+    """Every relative link and image of a docs page (learning curves and COMMAND.txt files in
+    results/ among them) names a file of the repository, as mkdocs build --strict checks."""
+    missing = [
+        target
+        for target in relative_links(page.read_text())
+        if not (page.parent / target).resolve().exists()
+    ]
+    assert not missing, f"{page.relative_to(ROOT)} links to files that are not here: {missing}"
+
+
+def test_readme_links_to_docs_that_exist():
+    missing = [
+        target
+        for target in relative_links((ROOT / "README.md").read_text())
+        if not (ROOT / target).exists()
+    ]
+    assert not missing, f"the README links to files that are not here: {missing}"
+
+
+def test_every_docs_page_is_in_the_mkdocs_nav():
+    nav = set(re.findall(r":\s*([\w./-]+\.md)\s*$", (ROOT / "mkdocs.yml").read_text(), re.M))
+    pages = {path.relative_to(DOCS).as_posix() for path in docs_pages()}
+    assert pages - nav == set(), f"docs pages missing from mkdocs.yml's nav: {pages - nav}"
+    assert nav - pages == set(), f"mkdocs.yml's nav names pages that are not here: {nav - pages}"

@@ -1,15 +1,18 @@
-"""Tests of agents/thesis_figures.py (every thesis Catch figure as one command) and of
-agents/plot_sweep.py's --reference option.
+"""Tests of agents/thesis_figures.py (every thesis Catch figure as one command), of its data file
+agents/thesis_figures.toml, and of agents/plot_sweep.py's --reference option.
 
 Every line's flags are parsed by its own script (tyro), which then resolves its defaults and
 builds its network, so that a flag a script lacks, or a network it cannot build, fails here
-without training anything. The command's own behaviour (--list, --dry-run, errors, rounds,
-plots) is tested with sweep.py's dry run and a stand-in for the sweeps; no agent is trained.
+without training anything. A malformed data file is refused, naming the figure, the line and the
+problem. The command's own behaviour (--list, --dry-run, errors, rounds, plots) is tested with
+sweep.py's dry run and a stand-in for the sweeps; no agent is trained.
 """
 
 import csv
 import dataclasses
+import re
 import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -39,9 +42,9 @@ def flag_names(argv: list[str]) -> list[str]:
     return [word[2:].split("=")[0] for word in argv if word.startswith("--")]
 
 
-def run_tool(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+def run_tool(*args: str, cwd: Path = ROOT, tool: Path = TOOL) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, str(TOOL), *args], capture_output=True, text=True, cwd=cwd, timeout=60
+        [sys.executable, str(tool), *args], capture_output=True, text=True, cwd=cwd, timeout=60
     )
 
 
@@ -119,6 +122,105 @@ def test_every_line_is_accepted_by_its_script(figure, line, capsys):
             assert args.vf_coef == float(value)
     args = module.resolve_defaults(args)
     module.ActorCritic(3, args)  # network-level errors (UsageError) surface here
+
+
+# ------------------------------------------------------------------------------------------------
+# The data file
+# ------------------------------------------------------------------------------------------------
+MINIMAL = """
+[flags]
+FF = "--vf-coef 1.0"
+
+[[figure]]
+id = "fig6.7"
+caption = "ELU against ReLU"
+thesis = \"\"\"ELU is worse
+    than ReLU.\"\"\"
+
+[figure.numbers]
+ELU = 0.5
+
+[[figure.line]]
+slug = "relu"
+label = "ReLU"
+script = "a3c_ff.py"
+flags = "{FF} --activation relu"
+source = "preset 13"
+
+[[figure.line]]
+slug = "elu"
+label = "ELU"
+script = "a3c_ff.py"
+flags = "{FF} --activation elu"
+samples = ["grad-clip=loguniform:0.5:40"]
+source = "preset 4"
+"""
+
+
+def write_data(folder: Path, old: str = "", new: str = "", name: str = "figures.toml") -> Path:
+    """MINIMAL in folder/name, its first old replaced by new."""
+    assert old in MINIMAL
+    path = folder / name
+    path.write_text(MINIMAL.replace(old, new, 1))
+    return path
+
+
+def test_the_loader_reads_a_data_file(tmp_path):
+    (figure,) = figures.load_figures(write_data(tmp_path))
+    assert (figure.id, figure.caption, figure.note) == ("fig6.7", "ELU against ReLU", "")
+    assert figure.thesis == "ELU is worse than ReLU."  # a line break reads as a space
+    assert [line.flags for line in figure.lines] == [
+        "--vf-coef 1.0 --activation relu",
+        "--vf-coef 1.0 --activation elu",
+    ]
+    assert figure.lines[1].samples == ("grad-clip=loguniform:0.5:40",)
+    assert figure.numbers == (("ELU", 0.5),)
+    assert figure.plots == (figures.Plot(),)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ('script = "a3c_ff.py"\n', "", "figure fig6.7, line 1 (ReLU): no script"),
+        ('slug = "elu"\n', "", "figure fig6.7, line 2 (ELU): no slug"),
+        ('slug = "elu"', 'slug = "elu"\nscrpit = "a3c_ff.py"',
+         "line 2 (ELU): unknown key 'scrpit' (a line has slug, label, script,"),
+        ('source = "preset 4"', "source = 4", "line 2 (ELU): source must be a string, got 4"),
+        ('"a3c_ff.py"', '"a3c_fff.py"', "line 1 (ReLU): script 'a3c_fff.py' is not in"),
+        ('slug = "relu"', 'slug = "a/relu"', "line 1 (ReLU): slug 'a/relu' is not a plain"),
+        ('slug = "elu"', 'slug = "relu"', "figure fig6.7: two lines with slug 'relu'"),
+        ("{FF} --activation elu", "{FX} --activation elu",
+         "line 2 (ELU): flags name {FX}, which [flags] does not define"),
+        ("--activation elu", "--activation 'elu", "line 2 (ELU): flags are not shell words"),
+        ('["grad-clip=loguniform:0.5:40"]', '["grad-clip"]',
+         "line 2 (ELU): samples must be NAME=DIST strings"),
+        ("ELU = 0.5", "Elu = 0.5", "fig6.7: numbers name 'Elu', which is no line's label"),
+        ("ELU = 0.5", 'ELU = "0.5"', "fig6.7: numbers: 'ELU' = '0.5' is not a number"),
+        ('caption = "ELU against ReLU"\n', "", "figure 1: no caption"),
+        ('source = "preset 4"\n', 'source = "preset 4"\n\n[[figure.plot]]\nx = "tau"\n',
+         "figure fig6.7, plot 1: x is 'tau', which not every line samples"),
+        ("[flags]", "[flags", "Expected ']'"),
+    ],
+)  # fmt: skip
+def test_the_loader_refuses_a_malformed_data_file(tmp_path, old, new, message):
+    path = write_data(tmp_path, old, new)
+    with pytest.raises(figures.DataError, match=re.escape(message)) as error:
+        figures.load_figures(path)
+    assert str(error.value).startswith(f"{figures.display(path)}: ")
+
+
+def test_a_malformed_data_file_stops_the_command_with_one_line(tmp_path):
+    """The command as a user runs it, beside a data file whose line lacks its script."""
+    agents = tmp_path / "agents"
+    agents.mkdir()
+    shutil.copy2(TOOL, agents / TOOL.name)
+    write_data(agents, 'script = "a3c_ff.py"\n', "", name="thesis_figures.toml")
+    result = run_tool("--list", cwd=tmp_path, tool=agents / TOOL.name)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr == (
+        "thesis_figures.py: error: agents/thesis_figures.toml: figure fig6.7, line 1 (ReLU): "
+        "no script\n"
+    )
 
 
 # ------------------------------------------------------------------------------------------------

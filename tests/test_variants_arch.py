@@ -672,7 +672,7 @@ def test_lstm_evaluation_carries_a_state_per_episode():
 
 
 # ---------------------------------------------------------------------------------------------
-# End to end: each script on tiny budgets, with the flags of tests/test_a3c_ff.py
+# End to end: each script on tiny budgets, with the flags of tests/test_runtime_a3c.py
 
 TINY = ["--num-workers", "2", "--eval-interval", "500", "--eval-episodes", "2"]
 

@@ -1,6 +1,6 @@
-"""End-to-end tests of agents/a3c_ff.py, run as a subprocess on tiny budgets with 2 workers: the
-run machinery of agents/a3c_runtime.py as a user meets it (the in-process machinery tests, for
-every script, are tests/test_a3c_runtime.py)."""
+"""a3c_runtime.a3c end to end: agents/a3c_ff.py run as a subprocess on tiny budgets with 2
+workers, the run machinery as a user meets it (resume, signals, a killed worker, --evaluate,
+bad flags); the in-process tests of each module are the other tests/test_runtime_*.py."""
 
 import os
 import re

@@ -1,16 +1,15 @@
-"""ActivationReplay: the learning forward over a rollout takes back the Conv2d and Linear outputs
-that acting computed with the same synced network, instead of computing them again; its
-gradients are those of recomputing (agents/a3c_runtime.py)."""
+"""a3c_runtime.replay: the learning forward over a rollout takes back the Conv2d and Linear
+outputs that acting computed with the same synced network, instead of computing them again; its
+gradients are those of recomputing. Which forwards record and replay is chosen by their input
+(rows of the rollout buffer or not) and the grad mode, so the worker loops never mention it."""
 
 import copy
-from contextlib import nullcontext
 
 import a3c_runtime as runtime
 import pytest
 import torch
 import torch.nn as nn
-from conftest import SCRIPTS, load_script
-from test_a3c_runtime import one_thread, shared_for, tiny_args  # noqa: F401  (one_thread: fixture)
+from conftest import SCRIPTS, load_script, shared_for, tiny_args
 
 # the relative error allowed in every gradient, replayed against recomputed in the same
 # precision: fp32 differs by float rounding only, bf16 by the kernels' batch sizes. bf16-learn
@@ -29,16 +28,14 @@ def test_a_linear_layer_replays_what_acting_recorded_and_backpropagates_by_hand(
     with torch.no_grad():
         layer.weight.copy_(torch.tensor([[1.0, 2.0], [3.0, 4.0]]))
         layer.bias.copy_(torch.tensor([0.5, -0.5]))
-    replay = runtime.ActivationReplay(layer)
-    x = torch.tensor([[1.0, -1.0], [2.0, 0.5]])
-    with torch.inference_mode(), replay.recording():
-        for row in x:
-            layer(row[None])  # acting: one state per step
+    inputs = torch.tensor([[1.0, -1.0], [2.0, 0.5]], requires_grad=True)  # the rollout's frames
+    runtime.ActivationReplay(layer, inputs)
+    with torch.inference_mode():
+        for t in range(2):
+            layer(inputs[t, None])  # acting: one state per step
     with torch.no_grad():
         layer.weight.add_(100.0)  # a replay would now differ from a recomputation
-    inputs = x.clone().requires_grad_()
-    with replay.replaying():
-        y = layer(inputs)
+    y = layer(inputs)
     torch.testing.assert_close(y, torch.tensor([[-0.5, -1.5], [3.5, 7.5]]))  # W x + b recorded
     g = torch.tensor([[1.0, 0.0], [0.0, 2.0]])
     grad_x, grad_w, grad_b = torch.autograd.grad(y, (inputs, layer.weight, layer.bias), g)
@@ -47,19 +44,17 @@ def test_a_linear_layer_replays_what_acting_recorded_and_backpropagates_by_hand(
     torch.testing.assert_close(grad_x, torch.tensor([[101.0, 102.0], [206.0, 208.0]]))  # g W
 
 
-def test_rows_acting_never_saw_are_computed_and_paused_forwards_are_not_recorded():
+def test_rows_acting_never_saw_are_computed_and_other_tensors_are_not_recorded():
     torch.manual_seed(0)
     layer = nn.Linear(3, 2)
-    replay = runtime.ActivationReplay(layer)
     x = torch.randn(3, 3)
-    with torch.inference_mode(), replay.recording():
+    runtime.ActivationReplay(layer, x)
+    with torch.inference_mode():
         layer(x[:1])
-        with replay.paused():
-            layer(torch.randn(5, 3))  # e.g. V(s_last) of a truncated episode
+        layer(torch.randn(5, 3))  # not rows of the rollout: e.g. V(s_last) of a truncation
         layer(x[1:2])
     assert layer.count == 2
-    with replay.replaying():
-        y = layer(x)  # row 2 (the bootstrap state) was not recorded
+    y = layer(x)  # row 2 (the bootstrap state) was not recorded
     torch.testing.assert_close(y, nn.functional.linear(x, layer.weight, layer.bias))
 
 
@@ -68,13 +63,13 @@ def test_rows_acting_never_saw_are_computed_in_actings_precision():
     acting never saw, is computed in fp32 like the rows it did see, not in bf16."""
     torch.manual_seed(0)
     layer = nn.Linear(64, 8)
-    replay = runtime.ActivationReplay(layer)
     x = torch.randn(3, 64)
+    runtime.ActivationReplay(layer, x)
     act, learn = runtime.autocast_contexts("bf16-learn")
-    with torch.inference_mode(), act, replay.recording():
+    with torch.inference_mode(), act:
         layer(x[:1])
         layer(x[1:2])
-    with learn, replay.replaying():
+    with learn:
         y = layer(x)
     assert y.dtype == torch.float32
     fp32 = nn.functional.linear(x, layer.weight, layer.bias)
@@ -89,47 +84,48 @@ def test_a_linear_layer_over_more_dimensions_replays_its_rows():
     acting records the rows of each step, and the replay takes them back in that order."""
     torch.manual_seed(0)
     layer = nn.Linear(3, 2)
-    replay = runtime.ActivationReplay(layer)
     x = torch.randn(3, 2, 4, 3)  # T = 3 steps of B = 2, 4 positions each
-    with torch.inference_mode(), replay.recording():
+    runtime.ActivationReplay(layer, x)
+    with torch.inference_mode():
         for t in range(2):
             layer(x[t, None])  # acting: (1, B, 4, features)
     assert layer.count == 2 * 2 * 4
-    with replay.replaying():
-        y = layer(x)  # step 2 was not recorded
+    y = layer(x)  # step 2 was not recorded
     torch.testing.assert_close(y, nn.functional.linear(x, layer.weight, layer.bias))
 
 
 def test_a_replay_that_leaves_recorded_rows_is_an_error():
     layer = nn.Linear(3, 2)
-    replay = runtime.ActivationReplay(layer)
-    with torch.inference_mode(), replay.recording():
-        layer(torch.randn(4, 3))
-    with (
-        pytest.raises(RuntimeError, match="1 recorded rows .* were not replayed"),
-        replay.replaying(),
-    ):
-        layer(torch.randn(3, 3))
-    assert replay.mode is None and layer.count == 0
+    frames = torch.randn(7, 3)
+    replay = runtime.ActivationReplay(layer, frames)
+    with torch.inference_mode():
+        layer(frames[:4])
+    with pytest.raises(RuntimeError, match="1 recorded rows .* were not replayed"):
+        layer(frames[4:])
+    assert replay.mode is None and layer.count == 0  # the next rollout starts afresh
 
 
 def test_the_layers_stay_what_they_were():
-    """Same parameters, names and state_dict; outside the two contexts a plain forward."""
+    """Same parameters, names and state_dict; on any tensor but the rollout's a plain forward."""
     module = load_script("a3c_ff")
     torch.manual_seed(0)
     model = module.ActorCritic(3, tiny_args(module))
     plain = copy.deepcopy(model)
-    replay = runtime.ActivationReplay(model)
+    frames = torch.zeros(3, 4, 84, 84, dtype=torch.uint8)
+    replay = runtime.ActivationReplay(model, frames)
     assert len(replay.layers) == 5  # 2 convs, the FC layer, the two heads
     assert all(isinstance(layer, (nn.Conv2d, nn.Linear)) for layer in replay.layers)
     assert list(model.state_dict()) == list(plain.state_dict())
     obs = torch.randint(0, 256, (2, 4, 84, 84), dtype=torch.uint8)
     torch.testing.assert_close(model(obs), plain(obs))
+    with torch.inference_mode():
+        model(obs)
+    assert all(layer.count == 0 for layer in replay.layers)  # nothing recorded
 
 
 @pytest.mark.parametrize("precision", ["fp32", "bf16", "bf16-learn"])
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread):  # noqa: F811
+def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread):
     """A worker's rollout of T = 3 steps of K = 2 envs, acted one step at a time, then the
     learning pass over the T + 1 states (the last one a bootstrap state acting never saw): the
     replaying network's values and gradients match the same network's recomputation (see
@@ -139,20 +135,20 @@ def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread
     torch.manual_seed(1)
     plain = module.AGENT.build_network(3, args)
     model = copy.deepcopy(plain)
-    replay = runtime.ActivationReplay(model)
     act, learn = runtime.autocast_contexts(precision)
     obs = torch.randint(0, 256, (4, 2, 4, 84, 84), dtype=torch.uint8)
+    runtime.ActivationReplay(model, obs)
     lstm = name == "a3c_lstm"
     state = model.initial_state(2) if lstm else None
-    with torch.inference_mode(), act, replay.recording():
+    with torch.inference_mode(), act:
         for t in range(3):
             if lstm:
                 state = model(obs[t, None], state)[2]
             else:
                 model(obs[t])
 
-    def loss_and_grads(network, context, learn=learn):
-        with learn, context:
+    def loss_and_grads(network, learn=learn):
+        with learn:
             if lstm:
                 log_probs, values, _ = network(obs, network.initial_state(2))
                 log_probs, values = log_probs.flatten(0, 1), values.flatten(0, 1)
@@ -166,8 +162,8 @@ def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread
         return values, torch.autograd.grad(loss, params, allow_unused=True)
 
     reference = runtime.autocast_contexts("fp32" if precision == "bf16-learn" else precision)[1]
-    plain_values, plain_grads = loss_and_grads(plain, nullcontext(), reference)
-    values, grads = loss_and_grads(model, replay.replaying())
+    plain_values, plain_grads = loss_and_grads(plain, reference)
+    values, grads = loss_and_grads(model)
     tolerance = TOLERANCE[precision]
     torch.testing.assert_close(values, plain_values, rtol=tolerance, atol=tolerance)
     names = [n for n, p in plain.named_parameters() if p.requires_grad]
@@ -181,7 +177,7 @@ def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_the_workers_learning_pass_computes_no_recorded_layer_again(name, one_thread):  # noqa: F811
+def test_the_workers_learning_pass_computes_no_recorded_layer_again(name, one_thread):
     """In each script's worker, the learning forwards compute Conv2d outputs only for states
     that acting did not see: with Catch's 15-step episodes and t_max 20 every rollout ends with
     its episode, so none at all, while acting computes one row per step."""

@@ -1,0 +1,134 @@
+"""The run machinery of the A3C scripts (agents/a3c_*.py): everything they share that is not the
+thesis's algorithm, written once, as CleanRL keeps its shared pieces in `cleanrl_utils`. One
+module per concern:
+
+- `a3c`: A3C's structure in one function (`train`: the shared network and optimizer, N
+  actor-learner processes, the evaluator) and the command line (`run`);
+- `hogwild`: what the processes share (`Shared`, each worker's `WorkerStats`), the shared
+  RMSprop and Adam, gradient clipping, the learning-rate schedule, the processes' seeds;
+- `supervision`: starting and watching the processes, signals, how a run stops;
+- `evaluation`: the evaluator process, the thesis's evaluation protocol, --evaluate;
+- `checkpoints`: atomic save, validated load, --resume;
+- `run_log`: TensorBoard, evaluations.csv, the console;
+- `flags`: env-dependent defaults, the flag checks (UsageError), --precision;
+- `replay`: the activation replay that spares the update its forward pass.
+
+A script gives `run` an `Agent` from its `main`; see `Agent` for what each field must be.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import torch
+import torch.nn as nn
+
+from .a3c import run, train
+from .checkpoints import load_checkpoint, load_network, restore, save_checkpoint
+from .evaluation import evaluate, evaluate_network, evaluator, make_eval_envs, play_episodes
+from .flags import (
+    UsageError,
+    autocast_contexts,
+    default_num_workers,
+    default_text,
+    native_bf16,
+    probe_env,
+    resolve_defaults,
+)
+from .hogwild import (
+    Shared,
+    SharedAdam,
+    SharedRMSprop,
+    WorkerStats,
+    annealed_lr,
+    clip_gradients,
+    process_seed,
+    seed_everything,
+)
+from .replay import ActivationReplay, replay_activations
+from .run_log import RunLog
+from .supervision import RunFailed, configure_process, run_process
+
+
+@dataclass(frozen=True)
+class Agent:
+    """What a script gives the runtime.
+
+    - `script`: the script's file name, stored in its checkpoints;
+    - `Args`: a dataclass with the flags of a3c_ff.py's Args (a variant adds its own);
+    - `make_env(env_id, render_mode=None)`: (4, 84, 84) uint8 observations, info["episode"] at
+      the end of a game;
+    - `network(num_actions, args)`: an nn.Module. forward(obs uint8 (B, 4, 84, 84)) ->
+      (log-probs (B, A), values (B,)); a recurrent network also has `initial_state(batch)` and
+      forward(obs (T, B, ...), state) -> (log-probs (T, B, A), values (T, B), state). An
+      optional `set_progress(fraction)` hears the training progress T / T_max before
+      evaluation episodes. The constructor raises UsageError for bad network flags; it runs
+      before any run folder exists;
+    - `network_args`: the Args fields a checkpoint's network depends on (resuming with another
+      value is refused);
+    - `worker(worker_id, shared, args)`: the actor-learner loop. It runs while
+      `shared.keep_running()` and the global step is below T_max, reads and updates
+      `shared.params` with `shared.optimizer`, counts its env steps in
+      `shared.steps[worker_id]` and adds its statistics (`Shared.STATS`) by name to
+      `shared.worker_stats(worker_id)`;
+    - `checkpoint_defaults`: flags newer than some checkpoints, with the value those
+      checkpoints' runs had where it is not the flag's default (e.g. SS's --conv-layout: final
+      before it existed).
+    """
+
+    script: str
+    Args: type
+    make_env: Callable[..., gym.Env]
+    network: Callable[[int, Any], nn.Module]
+    network_args: tuple[str, ...]
+    worker: Callable[..., None]
+    checkpoint_defaults: dict[str, Any] = field(default_factory=dict)
+
+    def trained_args(self, checkpoint: dict) -> dict[str, Any]:
+        """The flags a checkpoint was trained with; a flag it predates has its
+        checkpoint_defaults value, else (left out here) the flag's default."""
+        return {**self.checkpoint_defaults, **checkpoint["args"]}
+
+    def build_network(self, num_actions: int, args: Any) -> nn.Module:
+        # channels_last makes oneDNN's convolution backward about 2x faster on CPU
+        return self.network(num_actions, args).to(memory_format=torch.channels_last)
+
+
+__all__ = [
+    "ActivationReplay",
+    "Agent",
+    "RunFailed",
+    "RunLog",
+    "Shared",
+    "SharedAdam",
+    "SharedRMSprop",
+    "UsageError",
+    "WorkerStats",
+    "annealed_lr",
+    "autocast_contexts",
+    "clip_gradients",
+    "configure_process",
+    "default_num_workers",
+    "default_text",
+    "evaluate",
+    "evaluate_network",
+    "evaluator",
+    "load_checkpoint",
+    "load_network",
+    "make_eval_envs",
+    "native_bf16",
+    "play_episodes",
+    "probe_env",
+    "process_seed",
+    "replay_activations",
+    "resolve_defaults",
+    "restore",
+    "run",
+    "run_process",
+    "save_checkpoint",
+    "seed_everything",
+    "train",
+]

@@ -1,0 +1,198 @@
+"""A3C's structure and the command line: `train` (one shared network and optimizer, N
+actor-learner processes, an evaluator) and `run` (train, or --evaluate a checkpoint)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .checkpoints import load_checkpoint, restore, save_checkpoint
+from .evaluation import (
+    EvaluationInterrupted,
+    evaluate,
+    evaluate_network,
+    evaluator,
+    make_eval_envs,
+)
+from .flags import UsageError, probe_env, resolve_defaults
+from .hogwild import Shared, annealed_lr, process_seed, seed_everything
+from .run_log import RunLog, format_seconds
+from .supervision import FORK, RunFailed, Supervisor
+
+
+def train(agent: Any, args: Any) -> dict:
+    """A3C (thesis section 2.2.3, Algorithm 1): the global network theta and its optimizer
+    statistics live in shared memory; N actor-learner processes each run `agent.worker`, which
+    syncs theta, acts and updates theta without locks (Hogwild); an evaluator process plays the
+    thesis's evaluation protocol beside them. Returns the run's summary. Raises UsageError for a
+    bad checkpoint, flag or env before a run folder exists, RunFailed when a process dies."""
+    torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
+    checkpoint = load_checkpoint(args.resume, agent) if args.resume else None
+    seed_everything(args.seed)
+    num_actions = probe_env(agent.make_env, args.env)
+    # the network is built before the run folder: its constructor rejects bad flags
+    shared = Shared(agent.build_network(num_actions, args), args, FORK)
+    if checkpoint is not None:
+        restore(shared, checkpoint, args, args.resume, agent)
+    start_step = shared.global_step()
+    initial_params = [p.detach().clone() for p in shared.params]  # the evaluator's step 0
+    run_dir = make_run_dir(args, checkpoint)
+    evaluations = FORK.SimpleQueue()
+    processes = {f"worker {i}": (agent.worker, i, shared, args) for i in range(args.num_workers)}
+    processes["evaluator"] = (evaluator, agent, shared, args, start_step, initial_params,
+                              str(run_dir), evaluations)  # fmt: skip
+    supervisor = Supervisor(shared, processes)
+    if checkpoint is not None:
+        print(f"resuming run {run_dir.name} at step {start_step:,} -> {run_dir}", flush=True)
+    else:
+        print(f"run {run_dir.name} -> {run_dir}", flush=True)
+    print(f"pids: {supervisor.pids()}", flush=True)
+    # after the fork: the TensorBoard writer's thread must not be forked
+    log = RunLog(run_dir, args, checkpoint["wall_time"] if checkpoint else 0.0)
+    try:
+        outcome, sps = watch(agent, supervisor, shared, args, log, evaluations, run_dir, start_step)
+    finally:
+        supervisor.restore_signal_handlers()
+        log.close()
+    return summarize(outcome, sps, shared, log, run_dir)
+
+
+def make_run_dir(args: Any, checkpoint: dict | None) -> Path:
+    """--run-dir; a resumed run's own folder; or a new runs_root/<env>__<script>__<seed>__<time>."""
+    if args.run_dir:
+        run_dir = Path(args.run_dir)
+    elif checkpoint is not None:
+        run_dir = Path(args.resume).resolve().parent
+    else:
+        name = f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}"
+        run_dir = Path(args.runs_root) / name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    return run_dir
+
+
+def watch(
+    agent: Any,
+    supervisor: Supervisor,
+    shared: Shared,
+    args: Any,
+    log: RunLog,
+    evaluations: Any,
+    run_dir: Path,
+    start_step: int,
+) -> tuple[str, float]:
+    """The main process while the workers train: log progress and evaluations, checkpoint, and
+    stop at T_max, the time limit, a signal or a failure; then the final checkpoint and the final
+    evaluation, of the network after the last update. Returns (outcome, steps/s)."""
+    checkpoint_path = run_dir / "checkpoint.pt"
+    outcome = None
+    steady_start = None  # (time, step) once every worker has finished a rollout, for the SPS
+    last_log = (time.time(), start_step, shared.stats.clone())
+    next_checkpoint = (start_step // args.checkpoint_interval + 1) * args.checkpoint_interval
+
+    def drain() -> None:
+        while not evaluations.empty():
+            log.evaluation(evaluations.get())
+
+    try:
+        while outcome is None and not supervisor.failures:
+            time.sleep(0.1)
+            now, global_step = time.time(), shared.global_step()
+            # exit codes before the step: a worker that ended normally saw step >= T_max
+            supervisor.collect_failures(global_step, args.total_timesteps)
+            if steady_start is None and bool((shared.steps > 0).all()):
+                steady_start = (now, global_step)
+            drain()
+            if supervisor.signal_name is not None:
+                outcome = f"stopped by {supervisor.signal_name}"
+                break
+            if not supervisor.failures and supervisor.workers_done():
+                outcome = "done"
+            elif args.time_limit is not None and now - log.start >= args.time_limit:
+                outcome = "time limit"
+            if global_step >= next_checkpoint:
+                save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script)
+                interval = args.checkpoint_interval
+                next_checkpoint = (global_step // interval + 1) * interval
+            if now - last_log[0] >= args.log_interval:
+                stats = shared.stats.clone()
+                sps = (global_step - last_log[1]) / (now - last_log[0])
+                lr = annealed_lr(args, global_step)
+                log.progress(global_step, sps, lr, (stats - last_log[2]).sum(0))
+                last_log = (now, global_step, stats)
+    finally:
+        finished = outcome in ("done", "time limit") and not supervisor.failures
+        supervisor.stop(finished)
+    end_time, global_step = time.time(), shared.global_step()
+    drain()
+    if supervisor.failures:
+        raise RunFailed("\n".join(supervisor.failures))
+    if supervisor.signal_name is not None and finished:
+        outcome = f"stopped by {supervisor.signal_name} in the final evaluation"
+    save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script)
+    if outcome in ("done", "time limit"):
+        video_dir = str(run_dir / "videos") if args.capture_video else None
+        envs = make_eval_envs(agent, args, video_dir, prefix="final")
+        rng = np.random.default_rng(process_seed(args.seed, args.num_workers + 1))
+        try:
+            stopping = lambda: shared.signalled  # noqa: E731
+            log.evaluation(evaluate_network(shared.model, envs, rng, global_step, args, stopping))
+        except EvaluationInterrupted:
+            outcome = f"stopped by {supervisor.signal_name} in the final evaluation"
+        for env in envs:
+            env.close()
+    start_time, start_of_sps = steady_start or (log.start, start_step)
+    return outcome, (global_step - start_of_sps) / max(end_time - start_time, 1e-9)
+
+
+def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Path) -> dict:
+    """The run's summary, and its closing line on the console."""
+    global_step, last = shared.global_step(), log.last_eval
+    summary = {
+        "outcome": outcome,
+        "run_dir": str(run_dir),
+        "global_step": global_step,
+        "final_eval": last["mean_return"] if last else float("nan"),
+        "final_eval_step": last["global_step"] if last else None,
+        "wall_time_s": time.time() - log.start,
+        "eval_time_s": log.eval_seconds,
+        "sps": sps,
+    }
+    eval_text = (
+        f"final eval {last['mean_return']:.3f} at step {last['global_step']:,}"
+        if last
+        else "no evaluation"
+    )
+    print(
+        f"{outcome}: {eval_text} | wall time {format_seconds(summary['wall_time_s'])} "
+        f"(evaluations {format_seconds(log.eval_seconds)}) | SPS {sps:,.0f} | "
+        f"{global_step:,} steps | {run_dir}",
+        flush=True,
+    )
+    return summary
+
+
+def run(agent: Any) -> int:
+    """The command line: train, or --evaluate a checkpoint. Exit codes: 0 ok, 1 a process died,
+    2 bad usage (a one-line message, nothing created)."""
+    import tyro
+
+    args = tyro.cli(agent.Args)
+    import catch_env  # noqa: F401  (registers Catch-v0 and the ALE ids)
+
+    try:
+        if args.evaluate:
+            evaluate(agent, args)
+            return 0
+        train(agent, resolve_defaults(args))
+    except UsageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except RunFailed as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    return 0

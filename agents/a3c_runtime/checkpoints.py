@@ -1,0 +1,105 @@
+"""Checkpoints: written atomically (a temp file, then a rename) so that a crash never leaves a
+corrupt one; validated on load, so that a missing, corrupt or foreign checkpoint is a one-line
+UsageError; restored into the shared network and optimizer for --resume."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn as nn
+
+from .flags import UsageError
+from .hogwild import Shared
+
+CHECKPOINT_FORMAT = "a3c-checkpoint-v1"  # "script" was added compatibly: older ones lack it
+
+
+def save_checkpoint(
+    path: Path, shared: Shared, args: Any, wall_time: float, script: str = ""
+) -> None:
+    """Write atomically (temp file + rename) so that a crash never leaves a corrupt checkpoint."""
+    checkpoint = {
+        "format": CHECKPOINT_FORMAT,
+        "script": script,
+        "network": type(shared.model).__name__,
+        "model": {k: v.detach().clone() for k, v in shared.model.state_dict().items()},
+        "optimizer": shared.optimizer.state_dict(),
+        "optimizer_name": args.optimizer,
+        "global_step": shared.global_step(),
+        "wall_time": wall_time,
+        "args": asdict(args),
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(checkpoint, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str, agent: Any) -> dict:
+    """Load a checkpoint of this script, or raise UsageError saying what is wrong with it."""
+    if not os.path.isfile(path):
+        raise UsageError(f"checkpoint {path!r} does not exist")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:
+        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {e}") from e
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        raise UsageError(f"{path!r} is not a checkpoint written by this script")
+    script = checkpoint.get("script")  # absent before it was stored
+    if script and script != agent.script:
+        raise UsageError(
+            f"checkpoint {path!r} was written by {script}, not {agent.script}: "
+            f"use python agents/{script}"
+        )
+    # (every script's network class is ActorCritic, so the stored "network" name tells nothing;
+    # the script name above, or the tensors' shapes in load_network, refuse another's checkpoint)
+    return checkpoint
+
+
+def load_network(model: nn.Module, checkpoint: dict, path: str) -> None:
+    """Load the checkpoint's weights; a mismatch is a one-line UsageError."""
+    try:
+        result = model.load_state_dict(checkpoint["model"], strict=False)
+    except RuntimeError as e:  # a tensor of another shape: name the first one
+        lines = [line.strip() for line in str(e).splitlines() if "size mismatch" in line]
+        detail = lines[0] if lines else str(e).strip().splitlines()[-1]
+        raise UsageError(f"checkpoint {path!r} does not fit this network: {detail}") from e
+    problems = [f"{kind}: {', '.join(keys[:4])}" + (" ..." if len(keys) > 4 else "")
+                for kind, keys in (("missing", result.missing_keys),
+                                   ("unexpected", result.unexpected_keys)) if keys]  # fmt: skip
+    if problems:
+        raise UsageError(
+            f"checkpoint {path!r} does not fit this network (is it another script's?): "
+            + "; ".join(problems)
+        )
+
+
+def restore(shared: Shared, checkpoint: dict, args: Any, path: str, agent: Any) -> None:
+    """--resume: the checkpoint's network, optimizer statistics and global step into shared;
+    UsageError if the flags its network depends on differ."""
+    for key in agent.network_args:
+        # a flag newer than the checkpoint: see Agent.trained_args (a network that differs all
+        # the same fails to load below, with a one-line message)
+        trained = agent.trained_args(checkpoint).get(
+            key, agent.Args.__dataclass_fields__[key].default
+        )
+        if trained != getattr(args, key):
+            raise UsageError(
+                f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
+                f"{trained}, not {getattr(args, key)}"
+            )
+    if checkpoint["optimizer_name"] != args.optimizer:
+        raise UsageError(
+            f"checkpoint {path!r} holds {checkpoint['optimizer_name']} statistics; "
+            f"pass --optimizer {checkpoint['optimizer_name']}"
+        )
+    load_network(shared.model, checkpoint, path)
+    try:
+        shared.optimizer.load_state_dict(checkpoint["optimizer"])
+    except (RuntimeError, KeyError) as e:
+        first_line = str(e).strip().splitlines()[0]
+        raise UsageError(f"checkpoint {path!r} does not fit this network: {first_line}") from e
+    shared.base_step[0] = checkpoint["global_step"]

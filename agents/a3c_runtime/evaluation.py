@@ -1,0 +1,195 @@
+"""The thesis's evaluation protocol (--eval-episodes episodes sampling actions from pi, every
+--eval-interval global steps), played by an evaluator process beside the workers, and
+--evaluate: a checkpoint's network playing episodes, in a window with --render human."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+
+from .checkpoints import load_checkpoint, load_network
+from .flags import EVAL_EPISODES, UsageError, probe_env
+from .hogwild import Shared, process_seed, seed_everything
+
+HUMAN_EVAL_EPISODES = 5  # --evaluate --render human: a handful to watch, not the protocol's 50
+
+
+class EvaluationInterrupted(Exception):
+    """Ctrl-C or SIGTERM arrived while evaluation episodes were being played."""
+
+
+def play_episodes(
+    model: nn.Module,
+    envs: list[gym.Env],
+    seeds: list[int] | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
+) -> np.ndarray:
+    """Play one episode in each env in lock-step with one batched forward per step, sampling
+    actions from pi; returns the raw game scores. A recurrent network (initial_state) carries a
+    state row per running episode. Raises EvaluationInterrupted once should_stop() is true."""
+    observations = [env.reset(seed=None if seeds is None else seeds[i])[0] for i, env in
+                    enumerate(envs)]  # fmt: skip
+    scores = np.zeros(len(envs))
+    running = list(range(len(envs)))
+    recurrent = hasattr(model, "initial_state")
+    state = model.initial_state(len(envs)) if recurrent else None
+    with torch.inference_mode():
+        while running:
+            if should_stop():
+                raise EvaluationInterrupted
+            batch = torch.from_numpy(np.stack([observations[i] for i in running]))
+            if recurrent:
+                log_probs, _, state = model(batch[None], state)  # one step (T=1)
+                log_probs = log_probs[0]
+            else:
+                log_probs, _ = model(batch)
+            chosen = torch.multinomial(log_probs.exp(), 1).squeeze(1).tolist()
+            still_running = []
+            for i, action in zip(running, chosen, strict=True):
+                observations[i], _, terminated, truncated, info = envs[i].step(action)
+                if terminated or truncated:
+                    scores[i] = float(info["episode"]["r"])
+                else:
+                    still_running.append(i)
+            if recurrent:  # keep the state rows of the episodes still running
+                state = tuple(s[[running.index(i) for i in still_running]] for s in state)
+            running = still_running
+    return scores
+
+
+def make_eval_envs(
+    agent: Any, args: Any, video_dir: str | None, prefix: str = "rl-video"
+) -> list[gym.Env]:
+    """--eval-episodes envs; with a video_dir the first records every episode it plays."""
+    envs = []
+    for i in range(args.eval_episodes):
+        if video_dir and i == 0:
+            env = agent.make_env(args.env, render_mode="rgb_array")
+            env = gym.wrappers.RecordVideo(
+                env, video_dir, episode_trigger=lambda _: True, name_prefix=prefix
+            )
+        else:
+            env = agent.make_env(args.env)
+        envs.append(env)
+    return envs
+
+
+def evaluate_network(
+    model: nn.Module,
+    envs: list[gym.Env],
+    rng: np.random.Generator,
+    global_step: int,
+    args: Any,
+    should_stop: Callable[[], bool] = lambda: False,
+) -> dict:
+    """One evaluation of the thesis protocol: an episode per env, sampling from pi."""
+    if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
+        model.set_progress(global_step / args.total_timesteps)
+    start = time.time()
+    seeds = rng.integers(2**31, size=len(envs)).tolist()
+    scores = play_episodes(model, envs, seeds, should_stop)
+    return {"global_step": global_step, "scores": scores.tolist(), "seconds": time.time() - start}
+
+
+def evaluator(
+    agent: Any,
+    shared: Shared,
+    args: Any,
+    start_step: int,
+    initial_params: list[torch.Tensor],
+    run_dir: str,
+    evaluations: Any,
+) -> None:
+    """The evaluator process: evaluate a snapshot of the global network every eval_interval
+    global steps until the run stops; a fresh run's step 0 uses initial_params, copied before
+    the workers started. SIGTERM drops the evaluation it plays."""
+    seed = process_seed(args.seed, args.num_workers)
+    seed_everything(seed)
+    rng = np.random.default_rng(seed)
+    envs = make_eval_envs(
+        agent, args, os.path.join(run_dir, "videos") if args.capture_video else None
+    )
+    model = agent.build_network(envs[0].action_space.n, args)
+    params = list(model.parameters())
+
+    def signalled() -> bool:
+        return shared.signalled
+
+    try:
+        if start_step == 0:
+            with torch.no_grad():
+                torch._foreach_copy_(params, initial_params)
+            evaluations.put(evaluate_network(model, envs, rng, 0, args, signalled))
+        next_eval = (start_step // args.eval_interval + 1) * args.eval_interval
+        while shared.keep_running():
+            global_step = shared.global_step()
+            if next_eval <= global_step < args.total_timesteps:
+                with torch.no_grad():
+                    torch._foreach_copy_(params, shared.params)
+                evaluations.put(evaluate_network(model, envs, rng, global_step, args, signalled))
+                next_eval = (global_step // args.eval_interval + 1) * args.eval_interval
+            else:
+                time.sleep(0.05)
+    except EvaluationInterrupted:
+        pass
+    for env in envs:
+        env.close()
+
+
+def evaluation_episodes(args: Any) -> int:
+    """--evaluate's episodes: --eval-episodes, else a handful to watch with --render human and
+    the protocol's 50 otherwise."""
+    if args.eval_episodes is not None:
+        return args.eval_episodes
+    return HUMAN_EVAL_EPISODES if args.render == "human" else EVAL_EPISODES
+
+
+def evaluate(agent: Any, args: Any) -> np.ndarray:
+    """--evaluate: play episodes with a checkpoint's network, print each score and the mean."""
+    checkpoint = load_checkpoint(args.evaluate, agent)
+    try:
+        trained = agent.Args(**agent.trained_args(checkpoint))
+    except TypeError as e:
+        raise UsageError(
+            f"checkpoint {args.evaluate!r} has other flags than this script: {e}"
+        ) from e
+    episodes = evaluation_episodes(args)
+    if episodes < 1:
+        raise UsageError(f"--eval-episodes must be >= 1 (got {episodes})")
+    seed_everything(args.seed)
+    num_actions = probe_env(agent.make_env, trained.env)
+    env = agent.make_env(
+        trained.env, render_mode="rgb_array" if args.capture_video else
+        ("human" if args.render == "human" else None)
+    )  # fmt: skip
+    if args.capture_video:
+        video_dir = os.path.join(os.path.dirname(args.evaluate), "videos-evaluate")
+        env = gym.wrappers.RecordVideo(env, video_dir, episode_trigger=lambda _: True)
+    model = agent.network(num_actions, trained)
+    load_network(model, checkpoint, args.evaluate)
+    if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
+        model.set_progress(checkpoint["global_step"] / trained.total_timesteps)
+    scores = []
+    try:
+        for episode in range(episodes):
+            seed = args.seed + episode
+            scores.append(play_episodes(model, [env], [seed])[0])
+            print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
+    except KeyboardInterrupt:  # Ctrl-C: the episodes played so far still count
+        print(f"stopped by SIGINT after {len(scores)} episodes", flush=True)
+    env.close()
+    if not scores:
+        return np.asarray(scores)
+    print(
+        f"{trained.env}, step {checkpoint['global_step']:,}: mean score {np.mean(scores):.3f} "
+        f"+- {np.std(scores):.3f} over {len(scores)} episodes",
+        flush=True,
+    )
+    return np.asarray(scores)

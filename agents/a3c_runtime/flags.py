@@ -1,0 +1,136 @@
+"""The flags every script has: env-dependent defaults, the checks that turn a bad value into a
+one-line UsageError, and --precision."""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+import tyro
+
+OBSERVATION_SHAPE = (4, 84, 84)
+VALID_ENVS = "Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4, PongNoFrameskip-v4"
+EVAL_EPISODES = 50  # the thesis's evaluation protocol
+
+
+class UsageError(Exception):
+    """A bad flag, or a missing, corrupt or incompatible checkpoint: exit 2 with one line."""
+
+
+def default_num_workers() -> int:
+    """One actor-learner per core this process may use."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+def native_bf16() -> bool:
+    """Whether this CPU computes bfloat16 natively (x86 AVX512-BF16 or AMX-BF16, ARM BF16 or
+    SVE-BF16); elsewhere torch emulates it, slower than fp32."""
+    try:
+        capabilities = torch.cpu.get_capabilities()
+    except (AttributeError, RuntimeError):  # an older torch, or cpuinfo failed
+        return False
+    return any(capabilities.get(k, False) for k in ("avx512_bf16", "amx_bf16", "bf16", "sve_bf16"))
+
+
+def resolve_defaults(args: Any) -> Any:
+    """Fill the env-dependent defaults and reject bad numbers with a clear message."""
+    from catch_env.wrappers import is_atari
+
+    try:
+        atari = is_atari(args.env)  # registers the ALE ids first
+    except ImportError as e:
+        raise UsageError(str(e)) from e
+    except gym.error.Error as e:
+        raise UsageError(f"unknown --env {args.env!r}; valid: {VALID_ENVS}") from e
+    if args.total_timesteps is None:
+        args.total_timesteps = 100_000_000 if atari else 1_000_000
+    if args.eval_interval is None:
+        args.eval_interval = 1_000_000 if atari else 50_000
+    if args.eval_episodes is None:
+        args.eval_episodes = EVAL_EPISODES
+    if args.checkpoint_interval is None:
+        args.checkpoint_interval = args.eval_interval
+    if args.grad_clip is None:
+        args.grad_clip = 25.0 if args.grad_clip_mode == "global-norm" else 40.0
+    if args.scale_obs is None:
+        args.scale_obs = atari
+    envs_per_worker = getattr(args, "envs_per_worker", 1)  # tools may pass Args without it
+    args.precision = resolve_precision(getattr(args, "precision", "fp32"), envs_per_worker)
+    rms_init = getattr(args, "rms_init", 0.0)  # tools may pass Args without it
+    checks = {
+        "--total-timesteps": (args.total_timesteps, args.total_timesteps > 0, "> 0"),
+        "--num-workers": (args.num_workers, args.num_workers >= 1, ">= 1"),
+        "--envs-per-worker": (envs_per_worker, envs_per_worker >= 1, ">= 1"),
+        "--learning-rate": (args.learning_rate, args.learning_rate >= 0, ">= 0"),
+        "--t-max": (args.t_max, args.t_max >= 1, ">= 1"),
+        "--gamma": (args.gamma, 0 <= args.gamma <= 1, "in [0, 1]"),
+        "--ent-coef": (args.ent_coef, args.ent_coef >= 0, ">= 0"),
+        "--vf-coef": (args.vf_coef, args.vf_coef >= 0, ">= 0"),
+        "--rms-decay": (args.rms_decay, 0 <= args.rms_decay < 1, "in [0, 1)"),
+        "--adam-beta1": (args.adam_beta1, 0 <= args.adam_beta1 < 1, "in [0, 1)"),
+        "--adam-beta2": (args.adam_beta2, 0 <= args.adam_beta2 < 1, "in [0, 1)"),
+        "--optim-eps": (args.optim_eps, args.optim_eps > 0, "> 0"),
+        "--rms-init": (rms_init, rms_init >= 0, ">= 0"),
+        "--grad-clip": (args.grad_clip, args.grad_clip > 0, "> 0"),
+        "--eval-interval": (args.eval_interval, args.eval_interval > 0, "> 0"),
+        "--eval-episodes": (args.eval_episodes, args.eval_episodes >= 1, ">= 1"),
+        "--checkpoint-interval": (args.checkpoint_interval, args.checkpoint_interval > 0, "> 0"),
+        "--log-interval": (args.log_interval, args.log_interval > 0, "> 0"),
+    }
+    if args.time_limit is not None:
+        checks["--time-limit"] = (args.time_limit, args.time_limit > 0, "> 0")
+    for flag, (value, ok, rule) in checks.items():
+        if not (ok and math.isfinite(value)):
+            raise UsageError(f"{flag} must be {rule} (got {value})")
+    return args
+
+
+def resolve_precision(precision: str, envs_per_worker: int) -> str:
+    """--precision auto: on a CPU with native bf16, bf16 with K > 1 envs per worker and
+    bf16-learn with K = 1 (a forward over one state is faster in fp32, a batch in bf16:
+    results/throughput_batched); fp32 elsewhere."""
+    if precision == "auto":
+        if not native_bf16():
+            return "fp32"
+        return "bf16" if envs_per_worker > 1 else "bf16-learn"
+    if precision in ("bf16", "bf16-learn") and not native_bf16():
+        print(
+            f"warning: --precision {precision} on a CPU without native bfloat16 (AVX512-BF16, "
+            "AMX or ARM BF16): it is emulated and likely slower than fp32",
+            file=sys.stderr,
+        )
+    return precision
+
+
+def autocast_contexts(precision: str) -> tuple[torch.autocast, torch.autocast]:
+    """The CPU autocast contexts of a worker's (acting, learning) forward passes for a resolved
+    --precision: fp32 neither, bf16 both, bf16-learn the learning pass only."""
+    if precision not in ("fp32", "bf16", "bf16-learn"):
+        raise ValueError(f"unresolved --precision {precision!r}: fp32, bf16 or bf16-learn")
+    return (
+        torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"),
+        torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision != "fp32"),
+    )
+
+
+def probe_env(make_env: Any, env_id: str) -> int:
+    """The number of actions of env_id; UsageError unless its observations are the thesis's
+    stacked 84x84 frames (an id such as CartPole-v1 has none)."""
+    env = make_env(env_id)
+    space, num_actions = env.observation_space, getattr(env.action_space, "n", None)
+    env.close()
+    if space.shape != OBSERVATION_SHAPE or space.dtype != np.uint8 or num_actions is None:
+        raise UsageError(f"--env {env_id} gives no stacked 84x84 frames; valid: {VALID_ENVS}")
+    return int(num_actions)
+
+
+def default_text(text: str) -> Any:
+    """For a flag whose default is filled in from others (None in Args, resolve_defaults):
+    `Annotated[int | None, default_text("...")]` makes --help show this text as its default,
+    once, instead of None."""
+    return tyro.conf.arg(help_behavior_hint=f"(default: {text})")

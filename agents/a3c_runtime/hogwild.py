@@ -1,0 +1,167 @@
+"""The Hogwild pieces of A3C (thesis 2.2.3, 5.2.2): what the actor-learners share, and the
+library pieces their loops use, as torch.optim is to CleanRL's scripts: the shared RMSprop and
+Adam, gradient clipping, the learning-rate schedule and the processes' seeds."""
+
+from __future__ import annotations
+
+import os
+import random
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn as nn
+
+
+class Shared:
+    """Everything the processes share: the global network theta and the optimizer statistics
+    (in shared memory, updated without locks), each worker's step counter and statistics, and
+    the stop event. Built in the main process; a forked process sees the same tensors and its
+    own copy of the plain attributes (`signalled` is per process)."""
+
+    STATS = ("episodes", "return_sum", "length_sum", "updates", "policy_loss", "value_loss",
+             "entropy", "grad_norm")  # fmt: skip
+
+    def __init__(self, model: nn.Module, args: Any, ctx: Any):
+        self.model = model
+        self.model.share_memory()
+        self.params = list(self.model.parameters())
+        self.optimizer = make_optimizer(self.params, args)
+        # one step counter per worker, written only by its worker: lock-free and exact
+        self.steps = torch.zeros(args.num_workers, dtype=torch.int64).share_memory_()
+        self.base_step = torch.zeros(1, dtype=torch.int64).share_memory_()  # from --resume
+        self.stats = torch.zeros(args.num_workers, len(self.STATS), dtype=torch.float64)
+        self.stats.share_memory_()
+        self.stop = ctx.Event()  # the workers stop after their rollout, the evaluator after its
+        self.main_pid = os.getpid()
+        self.signalled = False  # this process got SIGTERM (or, in the main process, a signal)
+
+    def global_step(self) -> int:
+        return int(self.steps.sum()) + int(self.base_step)
+
+    def keep_running(self) -> bool:
+        """False once the run is stopping: the stop event, a signal to this process, or (in a
+        forked process) the main process gone."""
+        if self.signalled or self.stop.is_set():
+            return False
+        return os.getpid() == self.main_pid or os.getppid() == self.main_pid
+
+    def worker_stats(self, worker_id: int) -> WorkerStats:
+        return WorkerStats(self.stats[worker_id])
+
+
+class WorkerStats:
+    """One worker's running totals (Shared.STATS), added to by name; the main process logs the
+    change of their sum over the workers."""
+
+    INDEX = {name: i for i, name in enumerate(Shared.STATS)}
+
+    def __init__(self, row: torch.Tensor):
+        self.row = row.numpy()  # a view of the shared memory
+
+    def add(self, **totals: float) -> None:
+        for name, value in totals.items():
+            self.row[self.INDEX[name]] += value
+
+
+def annealed_lr(args: Any, global_step: int) -> float:
+    """The learning rate at global_step: annealed linearly to 0 at T_max (thesis Table 5.1)."""
+    if not args.anneal_lr:
+        return args.learning_rate
+    return args.learning_rate * max(0.0, 1.0 - global_step / args.total_timesteps)
+
+
+def clip_gradients(grads: list[torch.Tensor], mode: str, bound: float) -> float:
+    """Clip in place (thesis 6.3.1); returns the global norm before clipping."""
+    norms = torch.stack(torch._foreach_norm(grads))
+    global_norm = torch.linalg.vector_norm(norms)
+    # scale only when a bound is exceeded: a pass over 1.3M gradients saved in most updates
+    if mode == "norm" and bool((norms > bound).any()):
+        torch._foreach_mul_(grads, (bound / (norms + 1e-6)).clamp_(max=1.0).unbind())
+    elif mode == "value":
+        torch._foreach_clamp_min_(grads, -bound)
+        torch._foreach_clamp_max_(grads, bound)
+    elif mode == "global-norm" and global_norm > bound:
+        torch._foreach_mul_(grads, torch.clamp(bound / (global_norm + 1e-6), max=1.0))
+    return global_norm.item()
+
+
+class SharedRMSprop:
+    """RMSprop with the mean square shared by all workers (thesis 2.2.3, 5.2.2):
+    ms <- rho * ms + (1 - rho) * g^2;  theta <- theta - lr * g / sqrt(ms + eps), from
+    ms = `initial` (0 in the thesis's code; TensorFlow's RMSPropOptimizer starts at 1)."""
+
+    def __init__(self, params: list[torch.Tensor], decay: float, eps: float, initial: float = 0.0):
+        self.params, self.decay, self.eps = params, decay, eps
+        self.square_avg = [torch.full_like(p, initial).share_memory_() for p in params]
+
+    @torch.no_grad()
+    def step(self, grads: list[torch.Tensor], lr: float) -> None:
+        torch._foreach_mul_(self.square_avg, self.decay)
+        torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
+        # g * (ms + eps)^-0.5: on CPU faster than sqrt and a division, and pow_(-0.5) than
+        # rsqrt_ (same values, about half the time in torch 2.13's foreach kernels)
+        inv_rms = torch._foreach_add(self.square_avg, self.eps)
+        torch._foreach_pow_(inv_rms, -0.5)
+        torch._foreach_addcmul_(self.params, grads, inv_rms, value=-lr)
+
+    def state_dict(self) -> dict:
+        return {"square_avg": [s.clone() for s in self.square_avg]}
+
+    @torch.no_grad()
+    def load_state_dict(self, state: dict) -> None:
+        torch._foreach_copy_(self.square_avg, state["square_avg"])
+
+
+class SharedAdam:
+    """Adam with shared moments and step count (thesis A.1.2, eqs. A.1-A.5; eps inside the root)."""
+
+    def __init__(self, params: list[torch.Tensor], beta1: float, beta2: float, eps: float):
+        self.params, self.beta1, self.beta2, self.eps = params, beta1, beta2, eps
+        self.exp_avg = [torch.zeros_like(p).share_memory_() for p in params]
+        self.exp_avg_sq = [torch.zeros_like(p).share_memory_() for p in params]
+        self.step_count = torch.zeros(1, dtype=torch.float64).share_memory_()
+
+    @torch.no_grad()
+    def step(self, grads: list[torch.Tensor], lr: float) -> None:
+        self.step_count += 1  # not atomic: Hogwild, like the moments
+        t = self.step_count.item()
+        torch._foreach_lerp_(self.exp_avg, grads, 1.0 - self.beta1)
+        torch._foreach_mul_(self.exp_avg_sq, self.beta2)
+        torch._foreach_addcmul_(self.exp_avg_sq, grads, grads, value=1.0 - self.beta2)
+        inv_rms = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
+        torch._foreach_add_(inv_rms, self.eps)
+        torch._foreach_pow_(inv_rms, -0.5)  # as SharedRMSprop's
+        torch._foreach_addcmul_(
+            self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)
+        )
+
+    def state_dict(self) -> dict:
+        return {
+            "exp_avg": [m.clone() for m in self.exp_avg],
+            "exp_avg_sq": [v.clone() for v in self.exp_avg_sq],
+            "step_count": self.step_count.clone(),
+        }
+
+    @torch.no_grad()
+    def load_state_dict(self, state: dict) -> None:
+        torch._foreach_copy_(self.exp_avg, state["exp_avg"])
+        torch._foreach_copy_(self.exp_avg_sq, state["exp_avg_sq"])
+        self.step_count.copy_(state["step_count"])
+
+
+def make_optimizer(params: list[torch.Tensor], args: Any) -> SharedRMSprop | SharedAdam:
+    if args.optimizer == "adam":
+        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
+    return SharedRMSprop(params, args.rms_decay, args.optim_eps, getattr(args, "rms_init", 0.0))
+
+
+def process_seed(seed: int, index: int) -> int:
+    """Seed of process `index` (workers 0..N-1, then the evaluator); unlike seed + index, runs
+    with neighbouring --seed values share no worker's random streams."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    torch.manual_seed(seed)

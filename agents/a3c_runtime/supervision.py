@@ -1,0 +1,145 @@
+"""Processes and signals: the forked actor-learners and evaluator, what each sets first, how the
+main process watches them, and how a run stops (the end, a time limit, Ctrl-C or SIGTERM, or a
+process that died)."""
+
+from __future__ import annotations
+
+import ctypes
+import signal
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+import torch
+import torch.multiprocessing as mp
+
+from .hogwild import Shared
+
+# fork: a fast start, and it works when a script is loaded by path (spawn would re-import it)
+FORK = mp.get_context("fork")
+
+
+class RunFailed(RuntimeError):
+    """A worker or the evaluator died; the message holds its traceback."""
+
+
+def configure_process(keep_freed_memory: bool = True) -> None:
+    """What every worker and evaluator process sets first: one torch thread, denormals flushed,
+    and glibc's malloc told to keep freed memory, so that a worker's multi-megabyte tensors (the
+    FC layer's bf16 copy and gradient) do not come from a fresh mmap that page-faults on every
+    update (results/throughput_batched/COMMAND.txt has the measurements)."""
+    torch.set_num_threads(1)
+    torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
+    if not keep_freed_memory:
+        return
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc (macOS, Windows): nothing to set
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
+    mallopt(m_mmap_threshold, 32 << 20)  # glibc's maximum: blocks up to 32 MB from the heap
+    mallopt(m_trim_threshold, 1 << 30)  # and the heap not handed back to the system
+
+
+def run_process(
+    name: str, errors: Any, shared: Shared, target: Callable[..., None], *target_args: Any
+) -> None:
+    """Process entry: leave SIGINT to the main process (the terminal sends it to the whole
+    group); SIGTERM ends the loop (shared.keep_running); an exception goes to `errors` as
+    (name, trace)."""
+
+    def on_sigterm(_signum: int, _frame: Any) -> None:
+        shared.signalled = True
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, on_sigterm)
+    configure_process()
+    try:
+        target(*target_args)
+    except BaseException:
+        errors.put((name, traceback.format_exc()))
+        sys.exit(1)
+
+
+def describe_exit(exitcode: int) -> str:
+    if exitcode < 0:
+        return f"was killed by {signal.Signals(-exitcode).name}"
+    return f"exited with code {exitcode}"
+
+
+class Supervisor:
+    """Starts the named processes (each `(target, *args)`), collects their failures, and stops
+    them. While it runs, SIGINT and SIGTERM in the main process set `shared.signalled` (which
+    also ends evaluation episodes played here) and are remembered in `signal_name`."""
+
+    def __init__(self, shared: Shared, targets: dict[str, tuple[Any, ...]]):
+        self.shared = shared
+        self.errors = FORK.SimpleQueue()
+        self.failures: list[str] = []
+        self.signal_name: str | None = None
+        self.previous_handlers = {
+            s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)
+        }
+        self.processes = {
+            name: FORK.Process(
+                target=run_process, args=(name, self.errors, shared, *target), daemon=True
+            )
+            for name, target in targets.items()
+        }
+        for process in self.processes.values():
+            process.start()
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        self.shared.signalled = True
+        if self.signal_name is None:
+            self.signal_name = signal.Signals(signum).name
+
+    def pids(self) -> str:
+        return ", ".join(f"{name} {p.pid}" for name, p in self.processes.items())
+
+    def collect_failures(self, global_step: int | None = None, total: int = 0) -> None:
+        """Failures reported by the processes and, with global_step, processes that ended
+        early: exit 0 is only expected of a worker that reached T_max."""
+        while not self.errors.empty():
+            name, trace = self.errors.get()
+            self.failures.append(f"{name} failed:\n{trace}")
+        if global_step is None or self.failures:
+            return
+        for name, process in self.processes.items():
+            code = process.exitcode
+            early = name == "evaluator" or global_step < total
+            if code is not None and (code != 0 or early):
+                self.failures.append(f"{name} (pid {process.pid}) {describe_exit(code)}")
+                return
+
+    def workers_done(self) -> bool:
+        return all(p.exitcode == 0 for n, p in self.processes.items() if n != "evaluator")
+
+    def stop(self, finished: bool) -> None:
+        """Stop every process: the workers finish their rollout; a finished run's evaluator
+        completes the evaluation it plays (unless a signal comes), any other's drops it."""
+        self.shared.stop.set()
+        evaluator = self.processes.get("evaluator")
+        if evaluator is not None and not finished:
+            evaluator.terminate()  # SIGTERM: it drops the evaluation it plays
+        deadline = time.time() + 10
+        for name, process in self.processes.items():
+            if name == "evaluator" and finished:
+                while process.is_alive() and self.signal_name is None:
+                    process.join(0.1)
+                if self.signal_name is not None:
+                    process.terminate()
+            process.join(max(0.1, deadline - time.time()))
+            if process.is_alive():
+                process.kill()
+                process.join(1)
+        self.collect_failures()
+        evaluator_failed = evaluator is not None and evaluator.exitcode not in (0, None)
+        if evaluator_failed and finished and self.signal_name is None and not self.failures:
+            self.failures.append(f"evaluator {describe_exit(evaluator.exitcode)}")
+
+    def restore_signal_handlers(self) -> None:
+        for s, handler in self.previous_handlers.items():
+            signal.signal(s, handler)

@@ -1,0 +1,143 @@
+"""a3c_runtime.checkpoints: a round trip of network, optimizer statistics and step, and every
+bad checkpoint as a one-line UsageError; old checkpoints still load."""
+
+from pathlib import Path
+
+import a3c_runtime as runtime
+import pytest
+import torch
+from conftest import SCRIPTS, load_script, main_exit, shared_for, tiny_args
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+
+OPTIMIZER_STATISTICS = {"rmsprop": ("square_avg",), "adam": ("exp_avg", "exp_avg_sq")}
+
+
+def checkpoint_round_trip(module, name, folder: Path, optimizer: str):
+    """Save a Shared whose optimizer statistics are non-zero, restore it into a fresh Shared with
+    another initial network, and check that the network, statistics and step came back."""
+    args = tiny_args(module, optimizer=optimizer)
+    shared = shared_for(module, args)
+    shared.steps[0] = 1234
+    for i, key in enumerate(OPTIMIZER_STATISTICS[optimizer]):
+        for j, statistic in enumerate(getattr(shared.optimizer, key)):
+            statistic.copy_(torch.rand_like(statistic) + i + j + 1)  # non-zero, all different
+    if optimizer == "adam":
+        shared.optimizer.step_count.fill_(37)
+    path = folder / optimizer / "checkpoint.pt"
+    path.parent.mkdir()
+    runtime.save_checkpoint(path, shared, args, wall_time=12.0, script=f"{name}.py")
+    checkpoint = runtime.load_checkpoint(str(path), module.AGENT)
+    assert checkpoint["global_step"] == 1234 and checkpoint["wall_time"] == 12.0
+    assert checkpoint["script"] == f"{name}.py" and checkpoint["optimizer_name"] == optimizer
+    torch.manual_seed(123)  # another initial network
+    fresh = shared_for(module, args)
+    runtime.restore(fresh, checkpoint, args, str(path), module.AGENT)
+    assert fresh.global_step() == 1234
+    for p, q in zip(fresh.params, shared.params, strict=True):
+        assert torch.equal(p, q)
+    for key in OPTIMIZER_STATISTICS[optimizer]:
+        restored, saved = getattr(fresh.optimizer, key), getattr(shared.optimizer, key)
+        assert len(restored) == len(saved) == len(fresh.params)
+        for r, s in zip(restored, saved, strict=True):
+            assert (s != 0).all() and torch.equal(r, s), key
+            assert r.is_shared()  # restored in place: the workers still share them
+    if optimizer == "adam":
+        assert fresh.optimizer.step_count.item() == 37 and fresh.optimizer.step_count.is_shared()
+    return args, checkpoint, fresh, path
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_checkpoint_round_trip_and_errors(name, tmp_path):
+    module = load_script(name)
+    checkpoint_round_trip(module, name, tmp_path, "adam")
+    args, checkpoint, fresh, path = checkpoint_round_trip(module, name, tmp_path, "rmsprop")
+
+    agent = module.AGENT
+    with pytest.raises(runtime.UsageError, match="does not exist"):
+        runtime.load_checkpoint(str(tmp_path / "missing.pt"), agent)
+    (tmp_path / "garbage.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(runtime.UsageError, match="corrupt"):
+        runtime.load_checkpoint(str(tmp_path / "garbage.pt"), agent)
+    torch.save({"weights": 1}, tmp_path / "other.pt")
+    with pytest.raises(runtime.UsageError, match="not a checkpoint written by this script"):
+        runtime.load_checkpoint(str(tmp_path / "other.pt"), agent)
+    elu = tiny_args(module, activation="elu")
+    with pytest.raises(runtime.UsageError, match="--activation"):
+        runtime.restore(fresh, checkpoint, elu, str(path), agent)
+    checkpoint["model"]["value.weight"] = torch.zeros(5, 7)
+    with pytest.raises(runtime.UsageError, match="does not fit") as error:
+        runtime.restore(fresh, checkpoint, args, str(path), agent)
+    assert "\n" not in str(error.value)
+
+
+@pytest.fixture(scope="module")
+def ff_checkpoints(tmp_path_factory) -> tuple[Path, Path]:
+    """An a3c_ff.py checkpoint, and the same without the script name (as written before)."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    folder = tmp_path_factory.mktemp("ff")
+    new, old = folder / "new" / "checkpoint.pt", folder / "old" / "checkpoint.pt"
+    for path, script in ((new, "a3c_ff.py"), (old, "")):
+        path.parent.mkdir()
+        runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script=script)
+    checkpoint = torch.load(old, weights_only=False)
+    del checkpoint["script"]
+    torch.save(checkpoint, old)
+    return new, old
+
+
+@pytest.mark.parametrize("name", [s for s in SCRIPTS if s != "a3c_ff"])
+@pytest.mark.parametrize("mode", ["--resume", "--evaluate"])
+def test_another_scripts_checkpoint_is_refused_naming_its_script(
+    name, mode, ff_checkpoints, monkeypatch, capsys
+):
+    new, old = ff_checkpoints
+    module = load_script(name)
+    code, err = main_exit(module, [mode, str(new)], monkeypatch, capsys)
+    assert code == 2 and "was written by a3c_ff.py, not " + name in err
+    assert err.count("\n") == 1, err
+    # one written before checkpoints named their script: its network does not fit
+    code, err = main_exit(module, [mode, str(old)], monkeypatch, capsys)
+    if name in ("a3c_ss", "a3c_ww", "a3c_lws"):  # their networks refuse already at a flag or key
+        assert code == 2 and err.count("\n") == 1, err
+    else:
+        assert code == 2 and "does not fit this network (is it another script's?)" in err, err
+        assert err.count("\n") == 1, err
+    assert not list(new.parent.glob("events.*"))  # nothing written into the old run
+
+
+def test_an_old_checkpoint_of_the_same_script_still_loads(ff_checkpoints):
+    _, old = ff_checkpoints
+    module = load_script("a3c_ff")
+    checkpoint = runtime.load_checkpoint(str(old), module.AGENT)
+    args = tiny_args(module)
+    runtime.restore(shared_for(module, args), checkpoint, args, str(old), module.AGENT)
+
+
+def test_evaluating_an_old_checkpoint_of_another_network_is_a_usage_error(ff_checkpoints):
+    # no script name to refuse it by: the tensors of another shape give the one-line message
+    _, old = ff_checkpoints
+    module = load_script("a3c_ss")
+    with pytest.raises(runtime.UsageError, match="does not fit this network: size mismatch"):
+        runtime.evaluate(module.AGENT, module.Args(evaluate=str(old), eval_episodes=1))
+
+
+@pytest.mark.parametrize("name", ["a3c_ss", "a3c_ww"])
+def test_checkpoints_from_before_conv_layout_hold_the_final_network(name, tmp_path, capsys):
+    """Such checkpoints have no --conv-layout: the script's checkpoint_defaults say "final"."""
+    module = load_script(name)
+    args = tiny_args(module, conv_layout="final")
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="")
+    checkpoint = torch.load(path, weights_only=False)
+    del checkpoint["script"], checkpoint["args"]["conv_layout"]  # as written before the flag
+    torch.save(checkpoint, path)
+    loaded = runtime.load_checkpoint(str(path), module.AGENT)
+    runtime.restore(shared_for(module, args), loaded, args, str(path), module.AGENT)
+    with pytest.raises(runtime.UsageError, match="--conv-layout final, not ff"):
+        default = tiny_args(module)
+        runtime.restore(shared_for(module, default), loaded, default, str(path), module.AGENT)
+    evaluate = module.Args(evaluate=str(path), eval_episodes=1)
+    assert len(runtime.evaluate(module.AGENT, evaluate)) == 1
+    assert "over 1 episodes" in capsys.readouterr().out

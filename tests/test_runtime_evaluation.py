@@ -1,0 +1,44 @@
+"""a3c_runtime.evaluation: the evaluator process and --evaluate."""
+
+from types import SimpleNamespace
+
+import a3c_runtime as runtime
+import pytest
+import torch
+from conftest import FORK, SCRIPTS, load_script, shared_for, tiny_args
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_evaluator_scores_the_initial_network_at_step_0(name, tmp_path):
+    """No handshake: the evaluator gets a copy of the initial weights, taken before any worker
+    could update the shared network; it stops with the run."""
+    module = load_script(name)
+    args = tiny_args(module, eval_episodes=2)
+    shared = shared_for(module, args)
+    initial = [p.detach().clone() for p in shared.params]
+    with torch.no_grad():
+        for p in shared.params:
+            p.fill_(float("nan"))  # what the workers did meanwhile must not matter
+    shared.stop.set()
+    evaluations = FORK.SimpleQueue()
+    runtime.evaluator(module.AGENT, shared, args, 0, initial, str(tmp_path), evaluations)
+    result = evaluations.get()
+    assert result["global_step"] == 0 and len(result["scores"]) == 2
+    assert evaluations.empty()
+
+
+def test_evaluate_plays_a_handful_of_episodes_when_rendering():
+    args = SimpleNamespace(eval_episodes=None, render="human")
+    assert (
+        runtime.evaluation.evaluation_episodes(args) == runtime.evaluation.HUMAN_EVAL_EPISODES == 5
+    )
+    assert (
+        runtime.evaluation.evaluation_episodes(SimpleNamespace(eval_episodes=None, render="none"))
+        == 50
+    )
+    assert (
+        runtime.evaluation.evaluation_episodes(SimpleNamespace(eval_episodes=3, render="human"))
+        == 3
+    )

@@ -1,0 +1,131 @@
+"""a3c_runtime.flags: env-dependent defaults, --precision, --help, and bad flags: one line,
+exit 2, nothing created."""
+
+import re
+import warnings
+
+import a3c_runtime as runtime
+import pytest
+import torch
+from conftest import SCRIPTS, load_script, main_exit, run_script
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+
+
+def test_defaults_and_validation():
+    a3c = load_script("a3c_ff")
+    catch = runtime.resolve_defaults(a3c.Args())
+    assert (catch.total_timesteps, catch.eval_interval, catch.scale_obs) == (10**6, 50_000, False)
+    assert catch.grad_clip == 40.0 and catch.learning_rate == 7e-4 and catch.eval_episodes == 50
+    assert runtime.resolve_defaults(a3c.Args(grad_clip_mode="global-norm")).grad_clip == 25.0
+    atari = runtime.resolve_defaults(a3c.Args(env="BreakoutNoFrameskip-v4"))
+    assert (atari.total_timesteps, atari.eval_interval, atari.scale_obs) == (10**8, 10**6, True)
+    with pytest.raises(runtime.UsageError, match="--gamma must be in"):
+        runtime.resolve_defaults(a3c.Args(gamma=1.5))
+    with pytest.raises(runtime.UsageError, match="unknown --env"):
+        runtime.resolve_defaults(a3c.Args(env="Nope-v0"))
+
+
+BAD_FLAGS = [
+    (["--t-max", "0"], "error: --t-max must be >= 1 (got 0)"),
+    (["--learning-rate", "nan"], "error: --learning-rate must be >= 0"),
+    (["--env", "Nope-v0"], "error: unknown --env 'Nope-v0'; valid: Catch-v0"),
+    (["--env", "CartPole-v1"], "error: --env CartPole-v1 gives no stacked 84x84 frames; valid: "),
+    (["--resume", "/nonexistent/checkpoint.pt"], "error: checkpoint '/nonexistent/checkpoint.pt' "),
+    (["--evaluate", "/nonexistent/checkpoint.pt"], "error: checkpoint '/nonexistent/"),
+    (["--grad-clip-mode", "sideways"], "norm"),
+    (["--rms-init", "-1"], "error: --rms-init must be >= 0 (got -1.0)"),
+]
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+@pytest.mark.parametrize(("flags", "message"), BAD_FLAGS, ids=lambda v: " ".join(v)[:24])
+def test_bad_flags_exit_2_with_one_line_and_create_nothing(
+    name, flags, message, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)  # the default runs_root is ./runs
+    code, err = main_exit(load_script(name), flags, monkeypatch, capsys)
+    assert code == 2
+    if message.startswith("error: "):
+        assert err.startswith(message) and err.count("\n") == 1, err
+    else:  # tyro's box around a Literal's choices
+        assert message in err
+    assert list(tmp_path.iterdir()) == []
+
+
+VARIANT_FLAG_ERRORS = {
+    "a3c_lws": ["--lws-kcps", "0"],
+    "a3c_ss": ["--ss-initial-temperature", "0"],
+    "a3c_ww": ["--ww-where-maps", "65"],
+    "a3c_lstm": ["--lstm-cells", "0"],
+    "a3c_lpq": ["--competition-size", "17"],
+    "a3c_glpq": ["--temperature", "hot", "--p-end", "1"],
+}
+
+
+@pytest.mark.parametrize("name", VARIANT_FLAG_ERRORS)
+def test_bad_variant_flags_are_refused_before_the_run_folder_exists(
+    name, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    code, err = main_exit(load_script(name), VARIANT_FLAG_ERRORS[name], monkeypatch, capsys)
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_autocast_contexts_need_a_resolved_precision():
+    with pytest.raises(ValueError, match="unresolved --precision 'auto'"):
+        runtime.autocast_contexts("auto")
+
+
+@pytest.mark.parametrize("k", [1, 4])
+def test_auto_precision_is_bf16_for_batches_where_the_cpu_has_it(k, monkeypatch, capsys):
+    a3c = load_script("a3c_ff")
+    monkeypatch.setattr(runtime.flags, "native_bf16", lambda: True)
+    resolved = runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision
+    assert resolved == ("bf16-learn" if k == 1 else "bf16")  # one state acts faster in fp32
+    monkeypatch.setattr(runtime.flags, "native_bf16", lambda: False)
+    assert runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision == "fp32"
+    for explicit in ("fp32", "bf16", "bf16-learn"):
+        assert runtime.resolve_defaults(a3c.Args(precision=explicit)).precision == explicit
+    assert capsys.readouterr().err.count("warning") == 2  # the two bf16 ones, emulated here
+
+
+def test_bf16_without_native_support_warns_in_one_line(monkeypatch, capsys):
+    a3c = load_script("a3c_ff")
+    monkeypatch.setattr(runtime.flags, "native_bf16", lambda: False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        runtime.resolve_defaults(a3c.Args(precision="fp32"))
+        assert capsys.readouterr().err == ""  # fp32 never warns
+        runtime.resolve_defaults(a3c.Args(precision="bf16"))
+    err = capsys.readouterr().err
+    assert err.startswith("warning: --precision bf16") and err.count("\n") == 1, err
+    runtime.resolve_defaults(a3c.Args(precision="bf16-learn"))
+    err = capsys.readouterr().err
+    assert err.startswith("warning: --precision bf16-learn") and err.count("\n") == 1, err
+    monkeypatch.setattr(runtime.flags, "native_bf16", lambda: True)
+    runtime.resolve_defaults(a3c.Args(precision="bf16"))
+    assert capsys.readouterr().err == ""
+
+
+def test_native_bf16_reads_torchs_cpu_capabilities(monkeypatch):
+    assert isinstance(runtime.native_bf16(), bool)
+    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: {"avx512_bf16": False, "avx2": True})
+    assert runtime.native_bf16() is False
+    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: {"amx_bf16": True})
+    assert runtime.native_bf16() is True
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_help_shows_each_default_once(name):
+    """A flag whose default comes from others (None in Args) shows that default's text, once."""
+    result = run_script(name, "--help")
+    assert result.returncode == 0
+    entries = re.split(r"\n│ +(?=--[a-z])", result.stdout)[1:]  # one per flag, its lines
+    assert len(entries) > 30
+    for entry in entries:
+        assert entry.count("(default") <= 1, entry
+    text = re.sub(r"[\s│]+", " ", result.stdout)  # tyro's box, its line breaks undone
+    assert "(default: the number of CPU cores)" in text
+    assert "(default: 1e6 for Catch, 1e8 for ALE ids)" in text

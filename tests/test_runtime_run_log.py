@@ -1,0 +1,20 @@
+"""a3c_runtime.run_log: the console's progress lines."""
+
+from types import SimpleNamespace
+
+import a3c_runtime as runtime
+import torch
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+
+
+def test_a_resumed_runs_progress_shows_its_last_evaluation(tmp_path, capsys):
+    (tmp_path / "evaluations.csv").write_text(
+        "global_step,wall_time_s,mean_return,std_return,episodes\n"
+        "0,0.1,0.2,0.4,5\n2000,3.5,0.75,0.4,5\n"
+    )
+    args = SimpleNamespace(total_timesteps=4000, x=1)
+    log = runtime.RunLog(tmp_path, args, wall_offset=3.6)
+    log.progress(2500, 100.0, 1e-3, torch.zeros(len(runtime.Shared.STATS)))
+    log.close()
+    assert "| eval 0.750 @ 2,000 |" in capsys.readouterr().out
