@@ -2,7 +2,6 @@
 
     python benchmarks/a3c_step_profile.py [--seconds 20] [--env Catch-v0]
                                           [--envs-per-worker 1] [--precision fp32]
-                                          [--default-malloc]
 
 One process and one torch thread run agents/a3c_ff.py's own `worker` loop (sync, act up to t_max
 steps, one batched forward and backward, clip, shared RMSprop step), unchanged: the phases are
@@ -18,9 +17,7 @@ It then shows how the acting forward's time depends on its place in the rollout,
 same forward run back to back on one state and after a pause (sleeping) of a few milliseconds:
 on a shared host the first forwards after the learning phase run several times slower than warm
 ones, because the caches lose the forward's code and data while the worker is elsewhere, even
-asleep. The first line also gives the page faults per step; --default-malloc leaves glibc's
-malloc as it is instead of setting it as the workers do
-(a3c_runtime.supervision.configure_process), to compare.
+asleep. The first line also gives the page faults per step.
 """
 
 from __future__ import annotations
@@ -159,11 +156,6 @@ def main() -> None:
     parser.add_argument(
         "--precision", default="fp32", choices=["auto", "fp32", "bf16", "bf16-learn"]
     )
-    parser.add_argument(
-        "--default-malloc",
-        action="store_true",
-        help="leave glibc's malloc settings as they are (the workers keep freed memory)",
-    )
     opts = parser.parse_args()
     if opts.seconds <= 0:
         parser.error("--seconds must be > 0")
@@ -173,7 +165,7 @@ def main() -> None:
 
     flags = {"env": opts.env, "envs_per_worker": opts.envs_per_worker, "precision": opts.precision}
     a3c = load_a3c()
-    runtime.configure_process(keep_freed_memory=not opts.default_malloc)  # as the workers do
+    runtime.configure_process()  # as the workers do
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     try:
         steps, total, clock = profile(a3c, opts.seconds, **flags)

@@ -4,7 +4,6 @@
                                         [--num-workers N] [--no-baseline] [--env Catch-v0]
                                         [--envs-per-worker 1 [K ...]] [--precision fp32 [...]]
                                         [--replay on [off]] [--eval-episodes N]
-                                        [--default-malloc]
 
 It runs each script's own training loop (evaluations included) for --seconds and reports the
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
@@ -12,10 +11,7 @@ SCRIPTs (e.g. agents/a3c_lws.py) are compared with it: time per step relative to
 the same run. Every script runs at every setting, each value of --envs-per-worker with each
 --precision (K = 1 is the thesis's algorithm) and each --replay: off turns the scripts'
 ActivationReplay off (the learning pass recomputes the forward), to measure what it saves.
---default-malloc leaves glibc's malloc settings in the scripts' workers (which otherwise keep
-freed memory, a3c_runtime.supervision.configure_process), to measure what that saves. Both
-switches act from outside the scripts: they replace the runtime's function in this process
-before the workers fork.
+--replay off replaces the scripts' replay_activations (this process, before the workers fork).
 With --rounds R the baseline and the scripts take turns R times and the means are reported, so
 that slow drifts of a shared machine's speed fall on all of them alike.
 
@@ -30,7 +26,6 @@ printed before each measurement.
 from __future__ import annotations
 
 import argparse
-import functools
 import importlib.util
 import inspect
 import os
@@ -42,7 +37,6 @@ import time
 from pathlib import Path
 
 import a3c_runtime
-import a3c_runtime.supervision as supervision
 import numpy as np
 import torch
 import torch.multiprocessing as mp
@@ -258,9 +252,6 @@ def main() -> None:
                         help="the precisions to measure")  # fmt: skip
     parser.add_argument("--replay", nargs="+", default=["on"], choices=["on", "off"],
                         help="ActivationReplay on (as the scripts run) and/or off")  # fmt: skip
-    parser.add_argument("--default-malloc", action="store_true",
-                        help="the scripts' workers leave glibc's malloc settings as they are "
-                             "(they keep freed memory otherwise)")  # fmt: skip
     opts = parser.parse_args()
     if opts.eval_episodes is not None and opts.eval_episodes < 1:
         parser.error("--eval-episodes must be >= 1")
@@ -274,10 +265,6 @@ def main() -> None:
         if not path.is_file():
             parser.error(f"no such script: {path} (the agents are agents/a3c_*.py)")
     torch.set_num_threads(1)
-    if opts.default_malloc:  # the forked workers inherit it
-        supervision.configure_process = functools.partial(
-            supervision.configure_process, keep_freed_memory=False
-        )
     paths = [FF_SCRIPT] + [p.resolve() for p in opts.scripts if p.resolve() != FF_SCRIPT]
     scripts = {path.stem: load_script(path) for path in dict.fromkeys(paths)}
     a3c = scripts["a3c_ff"]
@@ -303,7 +290,7 @@ def main() -> None:
             )
     print(f"machine: {cpu}, {os.cpu_count()} cores; torch {torch.__version__}; {opts.env}; "
           f"{num_workers} workers; {opts.seconds:g} s per measurement, {opts.rounds} "
-          f"round(s)" + ("; scripts with glibc's default malloc" if opts.default_malloc else "")
+          f"round(s)"
           )  # fmt: skip
     gflops = matmul_gflops()
     print(f"matmul: {gflops:.1f} GFLOP/s per core (fp32, 1 thread)")

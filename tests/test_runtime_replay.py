@@ -178,11 +178,11 @@ def test_replayed_gradients_are_those_of_recomputing(name, precision, one_thread
 
 @pytest.mark.parametrize("name", SCRIPTS)
 def test_the_workers_learning_pass_computes_no_recorded_layer_again(name, one_thread):
-    """In each script's worker, the learning forwards compute Conv2d outputs only for states
-    that acting did not see: with Catch's 15-step episodes and t_max 20 every rollout ends with
-    its episode, so none at all, while acting computes one row per step."""
+    """In each script's worker with K = 2 envs, the learning forwards compute Conv2d outputs only
+    for states that acting did not see: with Catch's 15-step episodes and t_max 20 every rollout
+    ends with its episodes, so none at all, while acting computes one row per env and step."""
     module = load_script(name)
-    args = tiny_args(module, total_timesteps=45, t_max=20, precision="fp32")
+    args = tiny_args(module, total_timesteps=90, t_max=20, precision="fp32", envs_per_worker=2)
     shared = shared_for(module, args)
     rows = {True: 0, False: 0}  # by inference mode: acting, learning
     forward = nn.Conv2d.forward
@@ -197,5 +197,15 @@ def test_the_workers_learning_pass_computes_no_recorded_layer_again(name, one_th
     finally:
         nn.Conv2d.forward = forward
     convs = sum(isinstance(m, nn.Conv2d) for m in shared.model.modules())
-    assert shared.global_step() == 45 and shared.stats[0, 3] == 3  # 3 updates of 15 states
-    assert rows == {True: 45 * convs, False: 0}
+    assert shared.global_step() == 90 and shared.stats[0, 3] == 3  # 3 updates of 2 x 15 states
+    assert rows == {True: 90 * convs, False: 0}
+
+
+def test_workers_with_one_env_go_without_the_replay():
+    """At K = 1 it costs more than it saves (results/throughput_package): the model stays plain."""
+    module = load_script("a3c_ff")
+    model = module.ActorCritic(3, tiny_args(module))
+    assert runtime.replay_activations(model, torch.zeros(21, 1, 4, 84, 84)) is None
+    assert all(type(m) in (nn.Conv2d, nn.Linear) for m in model.modules() if hasattr(m, "weight"))
+    replay = runtime.replay_activations(model, torch.zeros(21, 2, 4, 84, 84))
+    assert replay is not None and len(replay.layers) == 5

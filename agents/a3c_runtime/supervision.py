@@ -4,7 +4,6 @@ process that died)."""
 
 from __future__ import annotations
 
-import ctypes
 import signal
 import sys
 import time
@@ -25,22 +24,12 @@ class RunFailed(RuntimeError):
     """A worker or the evaluator died; the message holds its traceback."""
 
 
-def configure_process(keep_freed_memory: bool = True) -> None:
-    """What every worker and evaluator process sets first: one torch thread, denormals flushed,
-    and glibc's malloc told to keep freed memory, so that a worker's multi-megabyte tensors (the
-    FC layer's bf16 copy and gradient) do not come from a fresh mmap that page-faults on every
-    update (results/throughput_batched/COMMAND.txt has the measurements)."""
+def configure_process() -> None:
+    """What every worker and evaluator process sets first: one torch thread, and denormals
+    flushed. (Telling glibc's malloc to keep freed memory gained 2% on the fast setting and
+    under 1% at K = 1, so it was removed: results/throughput_package/COMMAND.txt.)"""
     torch.set_num_threads(1)
     torch.set_flush_denormal(True)  # decayed RMSprop statistics must not turn into slow denormals
-    if not keep_freed_memory:
-        return
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # not glibc (macOS, Windows): nothing to set
-        return
-    m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
-    mallopt(m_mmap_threshold, 32 << 20)  # glibc's maximum: blocks up to 32 MB from the heap
-    mallopt(m_trim_threshold, 1 << 30)  # and the heap not handed back to the system
 
 
 def run_process(
