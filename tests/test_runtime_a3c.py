@@ -116,7 +116,9 @@ def test_resume_continues_global_step(short_run, tmp_path):
     assert result.returncode == 0, result.stderr
     # the continued run is named, and its progress shows its last evaluation until the next
     lines = result.stdout.splitlines()
-    assert lines[0].startswith(f"resuming run {tmp_path.name} at step {before:,}"), lines[0]
+    # the flags given with --resume that change how long it runs and evaluates, announced
+    assert lines[:2] == ["eval_interval 1,000 -> 1,000,000", "total_timesteps 3,000 -> 5,000"]
+    assert lines[2].startswith(f"resuming run {tmp_path.name} at step {before:,}"), lines[2]
     progress = [line for line in lines if line.startswith("step ")]
     assert progress, result.stdout
     last = old_rows[-1]

@@ -19,10 +19,9 @@ RESUMABLE = (
     "checkpoint_interval",
     "log_interval",
     "capture_video",
-    "run_dir",
-    "runs_root",
 )
-COMMAND_LINE_ONLY = ("resume", "evaluate", "render")  # about this command, not the run
+# about this command, not the experiment: where it writes (by default the checkpoint's folder)
+COMMAND_LINE_ONLY = ("resume", "evaluate", "render", "run_dir", "runs_root")
 
 
 def flag(name: str) -> str:
