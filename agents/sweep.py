@@ -32,8 +32,9 @@ workers per run, and the number of workers changes how a learning rate behaves; 
 `-- --num-workers 12` to match it.
 
 Scores. A finished run's evaluations.csv gives `score`, the mean of its final 5 evaluations
-(fewer when it has fewer), as the thesis scores a run, and `score_all`, the mean of all of its
-evaluations, the one at step 0 included (the thesis's "mean score on 20 evaluations" panel).
+(fewer when it has fewer; the one at step 0, of the untrained network, never counts unless it is
+the only one), as the thesis scores a run, and `score_all`, the mean of all of its evaluations,
+the one at step 0 included (the thesis's "mean score on 20 evaluations" panel).
 
 The results table OUT/results.csv has a row per finished run: run_id, status (ok or failed),
 score, score_all, evaluations, final_step, wall_time_s, seed, one column per sampled flag, flags
@@ -45,9 +46,10 @@ is always whole.
 
 Resuming. OUT/sweep.json holds the sweep's configuration (script name, samples, fixed flags,
 step budget, seed). Started again with the same OUT, the sweep refuses a different configuration
-(exit 2, naming what differs) and otherwise skips every run in the table (ok or failed); runs
-that were in progress are rerun from scratch (their run folder is deleted first). --runs, the
-backend and the concurrency may change between starts.
+(exit 2, naming what differs) and otherwise skips every run in the table (ok or failed); a run
+that was in progress resumes from its checkpoint with its own flags (`--resume`, which keeps
+every flag of the run), or starts again from scratch where it had written none (its run folder
+is deleted first). --runs, the backend and the concurrency may change between starts.
 
 Ctrl-C (SIGINT) or SIGTERM stops the sweep: no new runs start, each running run gets SIGINT (the
 scripts checkpoint and exit) and is not recorded, so it reruns on the next start; exit code 130.
@@ -243,13 +245,14 @@ def plan_runs(config: dict, runs: int) -> list[Run]:
 
 def score_evaluations(text: str) -> dict:
     """Score an evaluations.csv (columns global_step, ..., mean_return): `score` is the mean of
-    the final 5 evaluations' mean returns, `score_all` the mean of all of them. Raises ValueError
-    when it holds no evaluation."""
+    the final 5 evaluations' mean returns, leaving out step 0's unless it is the only one,
+    `score_all` the mean of all of them. Raises ValueError when it holds no evaluation."""
     rows = list(csv.DictReader(io.StringIO(text)))
     if not rows or "mean_return" not in rows[0]:
         raise ValueError("evaluations.csv holds no evaluation")
     returns = [float(row["mean_return"]) for row in rows]
-    final = returns[-SCORE_LAST:]
+    trained = [r for r, row in zip(returns, rows, strict=True) if row.get("global_step") != "0"]
+    final = (trained or returns)[-SCORE_LAST:]  # the untrained network's score never counts
     return {
         "score": sum(final) / len(final),
         "score_all": sum(returns) / len(returns),
@@ -282,11 +285,15 @@ def execute_run(
     checkpoint and exit), > 1 to die now (SIGKILL); a Ray cancel raises KeyboardInterrupt here
     and is a stop too. Returns what the sweep needs to score or describe it."""
     run_path = Path(run_dir)
-    shutil.rmtree(run_path, ignore_errors=True)  # a partial run from an interrupted sweep
-    run_path.mkdir(parents=True)
+    checkpoint = run_path / "checkpoint.pt"
+    if checkpoint.is_file():  # interrupted in an earlier sweep: the run goes on with its flags
+        command = [command[0], "--resume", str(checkpoint)]
+    else:  # a partial run that wrote no checkpoint starts again
+        shutil.rmtree(run_path, ignore_errors=True)
+        run_path.mkdir(parents=True)
     start = time.time()
     interrupted = False
-    with open(run_path / "stdout.log", "wb") as out, open(run_path / "stderr.log", "wb") as err:
+    with open(run_path / "stdout.log", "ab") as out, open(run_path / "stderr.log", "ab") as err:
         process = subprocess.Popen(
             [sys.executable, *command],
             stdout=out,

@@ -74,3 +74,15 @@ def test_a3c_step_profile_reports_every_phase():
     measured = number(r"([\d,]+) steps/s in one process")
     # the network's phases are only part of a step: the ceiling lies above the measured speed
     assert number(r"at most ([\d,]+) steps/s") > measured
+
+
+@pytest.mark.slow
+def test_fault_injection_resumes_runs_without_losing_a_checkpoint():
+    result = run(
+        "benchmarks/fault_injection.py", "--trials", "2", "--total-timesteps", "20000",
+        "--faults", "SIGKILL main", "SIGTERM", timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "faults survived 2/2; checkpoints lost or unloadable 0; orphan processes 0" in (
+        result.stdout
+    )

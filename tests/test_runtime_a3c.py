@@ -116,7 +116,9 @@ def test_resume_continues_global_step(short_run, tmp_path):
     assert result.returncode == 0, result.stderr
     # the continued run is named, and its progress shows its last evaluation until the next
     lines = result.stdout.splitlines()
-    assert lines[0].startswith(f"resuming run {tmp_path.name} at step {before:,}"), lines[0]
+    # the flags given with --resume that change how long it runs and evaluates, announced
+    assert lines[:2] == ["eval_interval 1,000 -> 1,000,000", "total_timesteps 3,000 -> 5,000"]
+    assert lines[2].startswith(f"resuming run {tmp_path.name} at step {before:,}"), lines[2]
     progress = [line for line in lines if line.startswith("step ")]
     assert progress, result.stdout
     last = old_rows[-1]
@@ -208,3 +210,97 @@ def test_atari_breakout_runs(tmp_path):
     assert result.returncode == 0, result.stderr
     steps = [int(r["global_step"]) for r in read_evaluations(tmp_path)]
     assert steps[0] == 0 and steps[-1] >= 2000
+
+
+def resume_line(text: str) -> re.Match:
+    """The closing line of a run that ended before T_max."""
+    last = text.strip().splitlines()[-1]
+    match = re.fullmatch(
+        r"checkpoint (\S+) \(step ([\d,]+)\) survives; resume: python (\S+) --resume (\S+)", last
+    )
+    assert match, last
+    return match
+
+
+def test_a_stopped_run_names_its_checkpoint_and_the_resume_command(tmp_path):
+    process, pids = start(*TINY, "--total-timesteps", "10000000", "--run-dir", str(tmp_path))
+    wait_for_progress(process)
+    process.send_signal(signal.SIGTERM)
+    stdout, _ = process.communicate(timeout=30)
+    match = resume_line(stdout)
+    step = torch.load(tmp_path / "checkpoint.pt", weights_only=False)["global_step"]
+    assert int(match[2].replace(",", "")) == step
+    assert Path(ROOT, match[1]).resolve() == (tmp_path / "checkpoint.pt").resolve()
+
+
+def test_a_killed_worker_names_the_surviving_checkpoint(tmp_path):
+    process, pids = start(*TINY, "--total-timesteps", "10000000", "--checkpoint-interval",
+                          "2000", "--run-dir", str(tmp_path))  # fmt: skip
+    while not (tmp_path / "checkpoint.pt").exists():
+        time.sleep(0.1)
+    os.kill(pids["worker 0"], signal.SIGKILL)
+    _, stderr = process.communicate(timeout=30)
+    assert process.returncode == 1
+    match = resume_line(stderr)
+    assert int(match[2].replace(",", "")) >= 2000
+    assert_all_gone(pids)
+
+
+def test_resume_of_a_run_still_training_is_refused_naming_its_pid(tmp_path):
+    process, pids = start(*TINY, "--total-timesteps", "10000000", "--checkpoint-interval",
+                          "1000", "--run-dir", str(tmp_path))  # fmt: skip
+    while not (tmp_path / "checkpoint.pt").exists():
+        time.sleep(0.1)
+    second = run("--resume", str(tmp_path / "checkpoint.pt"))
+    process.send_signal(signal.SIGTERM)
+    process.communicate(timeout=30)
+    assert second.returncode == 2
+    assert f"is in use by process {process.pid} " in second.stderr
+    assert second.stderr.count("\n") == 1, second.stderr
+
+
+def test_resume_keeps_the_runs_flags(tmp_path):
+    first = run(*TINY, "--total-timesteps", "1000", "--learning-rate", "3e-4", "--t-max", "5",
+                "--eval-interval", "500", "--run-dir", str(tmp_path))  # fmt: skip
+    assert first.returncode == 0, first.stderr
+    checkpoint = str(tmp_path / "checkpoint.pt")
+    second = run("--resume", checkpoint, "--total-timesteps", "2000", "--num-workers", "2")
+    assert second.returncode == 0, second.stderr
+    assert "total_timesteps 1,000 -> 2,000" in second.stdout
+    args = torch.load(checkpoint, weights_only=False)["args"]
+    assert (args["learning_rate"], args["t_max"], args["total_timesteps"]) == (3e-4, 5, 2000)
+    refused = run("--resume", checkpoint, "--learning-rate", "0.5")
+    assert refused.returncode == 2
+    assert refused.stderr.startswith("error: --learning-rate 0.5 differs from the run's 0.0003")
+
+
+def _mount_tmpfs(path: Path, size: int) -> bool:
+    path.mkdir()
+    result = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                            capture_output=True)  # fmt: skip
+    return result.returncode == 0
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="mounting a small tmpfs needs root")
+def test_a_full_disk_ends_the_run_cleanly_keeping_the_last_checkpoint(tmp_path):
+    """A real full disk: a tmpfs with room for one checkpoint and the logs, not for two."""
+    disk = tmp_path / "disk"
+    if not _mount_tmpfs(disk, 16 << 20):  # an A3C FF checkpoint is 10.6 MB
+        pytest.skip("mount -t tmpfs is not permitted here")
+    try:
+        process, pids = start(*TINY, "--total-timesteps", "10000000", "--checkpoint-interval",
+                              "1000", "--runs-root", str(disk))  # fmt: skip
+        _, stderr = process.communicate(timeout=120)
+        (run_dir,) = disk.iterdir()
+        assert process.returncode == 1
+        lines = stderr.strip().splitlines()
+        assert (
+            lines[-2] == f"error: could not write {run_dir}/checkpoint.pt: No space left on device"
+        )
+        match = resume_line(stderr)
+        step = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
+        assert step >= 1000 and int(match[2].replace(",", "")) == step
+        assert not list(run_dir.glob("*.tmp"))
+        assert_all_gone(pids)
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], check=False)

@@ -6,7 +6,7 @@ from pathlib import Path
 import a3c_runtime as runtime
 import pytest
 import torch
-from conftest import SCRIPTS, load_script, main_exit, shared_for, tiny_args
+from conftest import FORK, SCRIPTS, load_script, main_exit, shared_for, tiny_args
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -141,3 +141,36 @@ def test_checkpoints_from_before_conv_layout_hold_the_final_network(name, tmp_pa
     evaluate = module.Args(evaluate=str(path), eval_episodes=1)
     assert len(runtime.evaluate(module.AGENT, evaluate)) == 1
     assert "over 1 episodes" in capsys.readouterr().out
+
+
+def _save_under_a_file_size_limit(path: Path, limit: int, errors) -> None:
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))  # Python ignores SIGXFSZ
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    shared = shared_for(module, args)
+    shared.steps[0] = 99
+    try:
+        runtime.save_checkpoint(path, shared, args, 2.0, script="a3c_ff.py")
+    except runtime.WriteFailed as e:
+        errors.put(str(e))
+
+
+def test_a_failed_checkpoint_write_keeps_the_last_one_and_leaves_no_partial_file(tmp_path):
+    """A real failure: the file-size limit (RLIMIT_FSIZE) below a checkpoint's size."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    shared = shared_for(module, args)
+    shared.steps[0] = 42
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared, args, 1.0, script="a3c_ff.py")
+    size = path.stat().st_size
+    errors = FORK.SimpleQueue()
+    child = FORK.Process(target=_save_under_a_file_size_limit, args=(path, size // 2, errors))
+    child.start()
+    child.join(60)
+    assert child.exitcode == 0
+    assert errors.get() == f"could not write {path}: File too large"
+    assert runtime.load_checkpoint(str(path), module.AGENT)["global_step"] == 42
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]

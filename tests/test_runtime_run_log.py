@@ -3,6 +3,7 @@
 from types import SimpleNamespace
 
 import a3c_runtime as runtime
+import pytest
 import torch
 
 import catch_env  # noqa: F401  (registers Catch-v0)
@@ -18,3 +19,28 @@ def test_a_resumed_runs_progress_shows_its_last_evaluation(tmp_path, capsys):
     log.progress(2500, 100.0, 1e-3, torch.zeros(len(runtime.Shared.STATS)))
     log.close()
     assert "| eval 0.750 @ 2,000 |" in capsys.readouterr().out
+
+
+def test_a_failed_evaluation_row_is_taken_back_and_named(tmp_path, monkeypatch, capsys):
+    import errno
+    import os
+
+    args = SimpleNamespace(total_timesteps=4000)
+    log = runtime.RunLog(tmp_path, args, wall_offset=0.0)
+    log.evaluation({"global_step": 0, "scores": [0.0, 1.0], "seconds": 0.1})
+    csv_path = tmp_path / "evaluations.csv"
+    before = csv_path.read_bytes()
+    write = os.write
+
+    def write_half_then_fail(fd, data):
+        if fd == log.csv_fd:
+            write(fd, data[: len(data) // 2])  # a partial line reaches the disk, then it is full
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return write(fd, data)
+
+    monkeypatch.setattr(os, "write", write_half_then_fail)
+    with pytest.raises(runtime.WriteFailed, match="evaluations.csv: No space left on device"):
+        log.evaluation({"global_step": 1000, "scores": [1.0], "seconds": 0.1})
+    monkeypatch.setattr(os, "write", write)
+    assert csv_path.read_bytes() == before  # whole rows only
+    log.close()

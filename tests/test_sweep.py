@@ -187,7 +187,10 @@ def test_score_is_the_mean_of_the_final_5_evaluations():
     assert scores["score_all"] == pytest.approx(4.0 / 7)
     assert scores["evaluations"] == 7 and scores["final_step"] == "300000"
     short = sweep.score_evaluations("global_step,mean_return\n0,0.5\n10,1.0\n")
-    assert short["score"] == 0.75  # fewer than 5 evaluations: all of them
+    assert short["score"] == 1.0  # fewer than 5 evaluations: all of them but the untrained one
+    assert short["score_all"] == 0.75
+    only = sweep.score_evaluations("global_step,mean_return\n0,0.5\n")
+    assert only["score"] == 0.5  # step 0's counts where it is the only one
     with pytest.raises(ValueError):
         sweep.score_evaluations("global_step,wall_time_s,mean_return,std_return,episodes\n")
 
@@ -598,3 +601,26 @@ def test_tiny_a3c_sweep_ray(tmp_path):
     )
     check_a3c_sweep(out, result)
     assert "ray: 2 CPUs" in result.stdout
+
+
+@pytest.mark.slow
+def test_an_interrupted_run_resumes_with_its_own_flags(tmp_path):
+    """A run stopped mid-way (the sweep was interrupted) goes on from its checkpoint when the
+    sweep starts again, with the flags it was started with (--resume keeps them all)."""
+    import torch
+
+    run_dir = tmp_path / "runs" / "run-0000"
+    command = [str(A3C), "--total-timesteps", "12000", "--learning-rate", "0.0005",
+               "--num-workers", "1", "--checkpoint-interval", "500", "--eval-interval", "6000",
+               "--eval-episodes", "2", "--seed", "5", "--run-dir", str(run_dir)]  # fmt: skip
+    checkpoint = run_dir / "checkpoint.pt"
+    first = sweep.execute_run(command, str(run_dir), lambda: int(checkpoint.exists()))
+    assert first["interrupted"] and first["returncode"] == 0, first
+    step = torch.load(checkpoint, weights_only=False)["global_step"]
+    assert step < 12000
+    second = sweep.execute_run(command, str(run_dir))
+    assert second["returncode"] == 0 and not second["interrupted"], second
+    assert "resuming run run-0000 at step" in second["stdout_tail"]
+    resumed = torch.load(checkpoint, weights_only=False)
+    assert resumed["global_step"] >= 12000
+    assert (resumed["args"]["learning_rate"], resumed["args"]["seed"]) == (0.0005, 5)

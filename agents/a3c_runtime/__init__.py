@@ -8,7 +8,9 @@ module per concern:
   RMSprop and Adam, gradient clipping, the learning-rate schedule, the processes' seeds;
 - `supervision`: starting and watching the processes, signals, how a run stops;
 - `evaluation`: the evaluator process, the thesis's evaluation protocol, --evaluate;
-- `checkpoints`: atomic save, validated load, --resume;
+- `checkpoints`: atomic save, validated load, restoring for --resume;
+- `resume`: --resume continues the same experiment (the checkpoint's flags);
+- `run_folder`: the run folder, checked and locked (one writer at a time);
 - `run_log`: TensorBoard, evaluations.csv, the console;
 - `flags`: env-dependent defaults, the flag checks (UsageError), --precision;
 - `replay`: the activation replay that spares the update its forward pass.
@@ -27,7 +29,13 @@ import torch
 import torch.nn as nn
 
 from .a3c import run, train
-from .checkpoints import load_checkpoint, load_network, restore, save_checkpoint
+from .checkpoints import (
+    WriteFailed,
+    load_checkpoint,
+    load_network,
+    restore,
+    save_checkpoint,
+)
 from .evaluation import evaluate, evaluate_network, evaluator, make_eval_envs, play_episodes
 from .flags import (
     UsageError,
@@ -106,6 +114,7 @@ __all__ = [
     "SharedAdam",
     "SharedRMSprop",
     "UsageError",
+    "WriteFailed",
     "WorkerStats",
     "annealed_lr",
     "autocast_contexts",

@@ -3,6 +3,7 @@ actor-learner processes, an evaluator) and `run` (train, or --evaluate a checkpo
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -11,7 +12,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from .checkpoints import load_checkpoint, restore, save_checkpoint
+from .checkpoints import WriteFailed, checkpoint_step, load_checkpoint, restore, save_checkpoint
 from .evaluation import (
     EvaluationInterrupted,
     evaluate,
@@ -21,6 +22,8 @@ from .evaluation import (
 )
 from .flags import UsageError, probe_env, resolve_defaults
 from .hogwild import Shared, annealed_lr, process_seed, seed_everything
+from .resume import given_flags, resumed_args
+from .run_folder import RunFolder, run_folder_path
 from .run_log import RunLog, format_seconds
 from .supervision import FORK, RunFailed, Supervisor
 
@@ -30,7 +33,8 @@ def train(agent: Any, args: Any) -> dict:
     statistics live in shared memory; N actor-learner processes each run `agent.worker`, which
     syncs theta, acts and updates theta without locks (Hogwild); an evaluator process plays the
     thesis's evaluation protocol beside them. Returns the run's summary. Raises UsageError for a
-    bad checkpoint, flag or env before a run folder exists, RunFailed when a process dies."""
+    bad checkpoint, flag, env or run folder before anything is created; RunFailed when a process
+    dies and WriteFailed when a file cannot be written, each with `run_dir` set."""
     torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
     checkpoint = load_checkpoint(args.resume, agent) if args.resume else None
     seed_everything(args.seed)
@@ -41,7 +45,8 @@ def train(agent: Any, args: Any) -> dict:
         restore(shared, checkpoint, args, args.resume, agent)
     start_step = shared.global_step()
     initial_params = [p.detach().clone() for p in shared.params]  # the evaluator's step 0
-    run_dir = make_run_dir(args, checkpoint)
+    folder = RunFolder(run_folder_path(args, checkpoint))  # locked: one writer per run folder
+    run_dir = folder.path
     evaluations = FORK.SimpleQueue()
     processes = {f"worker {i}": (agent.worker, i, shared, args) for i in range(args.num_workers)}
     processes["evaluator"] = (evaluator, agent, shared, args, start_step, initial_params,
@@ -52,27 +57,23 @@ def train(agent: Any, args: Any) -> dict:
     else:
         print(f"run {run_dir.name} -> {run_dir}", flush=True)
     print(f"pids: {supervisor.pids()}", flush=True)
-    # after the fork: the TensorBoard writer's thread must not be forked
-    log = RunLog(run_dir, args, checkpoint["wall_time"] if checkpoint else 0.0)
+    log = None
     try:
+        # after the fork: the TensorBoard writer's thread must not be forked
+        log = RunLog(run_dir, args, checkpoint["wall_time"] if checkpoint else 0.0)
         outcome, sps = watch(agent, supervisor, shared, args, log, evaluations, run_dir, start_step)
+        log.close()
+    except BaseException as e:
+        supervisor.stop(finished=False)  # (stopped already, unless RunLog itself failed)
+        if log is not None:
+            log.close(quietly=True)
+        if isinstance(e, (RunFailed, WriteFailed)):
+            e.run_dir = run_dir  # for the closing line
+        raise
     finally:
         supervisor.restore_signal_handlers()
-        log.close()
+        folder.close()
     return summarize(outcome, sps, shared, log, run_dir)
-
-
-def make_run_dir(args: Any, checkpoint: dict | None) -> Path:
-    """--run-dir; a resumed run's own folder; or a new runs_root/<env>__<script>__<seed>__<time>."""
-    if args.run_dir:
-        run_dir = Path(args.run_dir)
-    elif checkpoint is not None:
-        run_dir = Path(args.resume).resolve().parent
-    else:
-        name = f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}"
-        run_dir = Path(args.runs_root) / name
-    run_dir.mkdir(parents=True, exist_ok=True)
-    return run_dir
 
 
 def watch(
@@ -98,6 +99,7 @@ def watch(
         while not evaluations.empty():
             log.evaluation(evaluations.get())
 
+    loop_ended = False
     try:
         while outcome is None and not supervisor.failures:
             time.sleep(0.1)
@@ -124,8 +126,9 @@ def watch(
                 lr = annealed_lr(args, global_step)
                 log.progress(global_step, sps, lr, (stats - last_log[2]).sum(0))
                 last_log = (now, global_step, stats)
-    finally:
-        finished = outcome in ("done", "time limit") and not supervisor.failures
+        loop_ended = True
+    finally:  # a failed write ends the loop too: the processes stop, the evaluator at once
+        finished = loop_ended and outcome in ("done", "time limit") and not supervisor.failures
         supervisor.stop(finished)
     end_time, global_step = time.time(), shared.global_step()
     drain()
@@ -177,8 +180,10 @@ def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Pa
 
 
 def run(agent: Any) -> int:
-    """The command line: train, or --evaluate a checkpoint. Exit codes: 0 ok, 1 a process died,
-    2 bad usage (a one-line message, nothing created)."""
+    """The command line: train, or --evaluate a checkpoint. Exit codes: 0 ok (a run stopped by
+    a signal included), 1 a process died or a file could not be written, 2 bad usage (a
+    one-line message, nothing created). A run that ends before T_max ends with a line naming
+    the checkpoint that survives and the command that resumes it."""
     import tyro
 
     args = tyro.cli(agent.Args)
@@ -188,11 +193,30 @@ def run(agent: Any) -> int:
         if args.evaluate:
             evaluate(agent, args)
             return 0
-        train(agent, resolve_defaults(args))
+        if args.resume:  # the same experiment: the checkpoint's flags
+            checkpoint = load_checkpoint(args.resume, agent)
+            args = resumed_args(agent, checkpoint, args, given_flags(sys.argv[1:], agent.Args))
+        summary = train(agent, resolve_defaults(args))
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except RunFailed as e:
+    except (RunFailed, WriteFailed) as e:
         print(f"error: {e}", file=sys.stderr)
+        print(resume_hint(agent, e.run_dir), file=sys.stderr, flush=True)
         return 1
+    if summary["outcome"] != "done":
+        print(resume_hint(agent, Path(summary["run_dir"])), flush=True)
     return 0
+
+
+def resume_hint(agent: Any, run_dir: Path) -> str:
+    """The closing line of a run that ended before T_max: its surviving checkpoint, that
+    checkpoint's step, and the command that resumes it."""
+    path = run_dir / "checkpoint.pt"
+    step = checkpoint_step(path) if path.exists() else None
+    if step is None:
+        return f"no checkpoint was written in {run_dir}: start the run again to train it"
+    relative = os.path.relpath(path)
+    shown = path if relative.startswith("..") else relative
+    script = sys.argv[0] if os.path.basename(sys.argv[0]) == agent.script else agent.script
+    return f"checkpoint {shown} (step {step:,}) survives; resume: python {script} --resume {shown}"

@@ -1,9 +1,12 @@
-"""Checkpoints: written atomically (a temp file, then a rename) so that a crash never leaves a
-corrupt one; validated on load, so that a missing, corrupt or foreign checkpoint is a one-line
-UsageError; restored into the shared network and optimizer for --resume."""
+"""Checkpoints: written atomically (a temp file, flushed to disk, then a rename) so that a crash
+or a full disk never leaves a corrupt one or a partial file; validated on load, so that a
+missing, corrupt or foreign checkpoint is a one-line UsageError; restored into the shared
+network and optimizer for --resume."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from dataclasses import asdict
 from pathlib import Path
@@ -33,9 +36,41 @@ def save_checkpoint(
         "wall_time": wall_time,
         "args": asdict(args),
     }
+    buffer = io.BytesIO()  # serialised first, so that a failed write is the OS's own error
+    torch.save(checkpoint, buffer)
+    write_atomically(path, buffer.getbuffer())
+
+
+class WriteFailed(Exception):
+    """A run's file could not be written (a full disk, a read-only folder, a file-size limit)."""
+
+    def __init__(self, path: Path | str, error: OSError):
+        self.path, self.error = Path(path), error
+        super().__init__(f"could not write {path}: {error.strerror or error}")
+
+
+def write_atomically(path: Path, data: bytes | memoryview) -> None:
+    """path's new content, all or nothing: a temp file beside it, flushed to disk, renamed over
+    it. On failure the temp file is removed and the old file is untouched: WriteFailed."""
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(checkpoint, tmp)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise WriteFailed(path, e) from e
+
+
+def checkpoint_step(path: Path) -> int | None:
+    """The global step of a checkpoint that loads, else None."""
+    try:
+        return int(torch.load(path, map_location="cpu", weights_only=False)["global_step"])
+    except Exception:
+        return None
 
 
 def load_checkpoint(path: str, agent: Any) -> dict:

@@ -119,8 +119,8 @@ def evaluator(
     model = agent.build_network(envs[0].action_space.n, args)
     params = list(model.parameters())
 
-    def signalled() -> bool:
-        return shared.signalled
+    def signalled() -> bool:  # a running evaluation completes when the run ends, unless...
+        return shared.signalled or shared.orphaned()
 
     try:
         if start_step == 0:

@@ -42,9 +42,11 @@ class Shared:
     def keep_running(self) -> bool:
         """False once the run is stopping: the stop event, a signal to this process, or (in a
         forked process) the main process gone."""
-        if self.signalled or self.stop.is_set():
-            return False
-        return os.getpid() == self.main_pid or os.getppid() == self.main_pid
+        return not (self.signalled or self.stop.is_set() or self.orphaned())
+
+    def orphaned(self) -> bool:
+        """A forked process whose main process is gone (killed): it ends at once."""
+        return os.getpid() != self.main_pid and os.getppid() != self.main_pid
 
     def worker_stats(self, worker_id: int) -> WorkerStats:
         return WorkerStats(self.stats[worker_id])

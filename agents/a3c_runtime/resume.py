@@ -1,0 +1,82 @@
+"""--resume continues the same experiment: every flag comes from the checkpoint. A flag given
+with --resume that does not change the experiment (RESUMABLE: how long it runs, how many
+workers, how often it evaluates, logs and checkpoints, videos) applies and is announced; any
+other that differs from the run's is refused."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from .flags import UsageError
+
+RESUMABLE = (
+    "total_timesteps",
+    "time_limit",
+    "num_workers",
+    "eval_interval",
+    "eval_episodes",
+    "checkpoint_interval",
+    "log_interval",
+    "capture_video",
+)
+# about this command, not the experiment: where it writes (by default the checkpoint's folder)
+COMMAND_LINE_ONLY = ("resume", "evaluate", "render", "run_dir", "runs_root")
+
+
+def flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def given_flags(argv: list[str], args_type: type) -> set[str]:
+    """The Args fields named on the command line (`--name value`, `--name=value`, and a bool's
+    `--no-name`)."""
+    fields = {f.name for f in dataclasses.fields(args_type)}
+    given = set()
+    for token in argv:
+        if not token.startswith("--"):
+            continue
+        name = token[2:].split("=", 1)[0].replace("-", "_")
+        if name not in fields and name.startswith("no_"):
+            name = name[3:]
+        if name in fields:
+            given.add(name)
+    return given
+
+
+def show(value: Any) -> str:
+    return f"{value:,}" if isinstance(value, int) and not isinstance(value, bool) else str(value)
+
+
+def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> Any:
+    """The Args of the run being resumed: the checkpoint's, with the RESUMABLE flags given on
+    the command line. Prints a line for each flag that changes and for each flag the checkpoint
+    predates (it takes the value agent.trained_args gives it); UsageError for a given flag that
+    would change the experiment."""
+    trained = agent.trained_args(checkpoint)
+    values = {}
+    for name in (f.name for f in dataclasses.fields(agent.Args)):
+        if name in trained:
+            values[name] = trained[name]
+        else:  # a flag newer than the checkpoint: its default, as the run had no such flag
+            values[name] = getattr(agent.Args(), name)
+            if name not in COMMAND_LINE_ONLY:
+                print(
+                    f"note: the checkpoint predates {flag(name)}; the run goes on with "
+                    f"{show(values[name])}",
+                    flush=True,
+                )
+    for name in sorted(given - set(COMMAND_LINE_ONLY)):
+        new, old = getattr(args, name), values[name]
+        if new == old:
+            continue
+        if name not in RESUMABLE:
+            raise UsageError(
+                f"{flag(name)} {show(new)} differs from the run's {show(old)}: a resumed run keeps "
+                f"its flags; only {', '.join(flag(n) for n in RESUMABLE)} may change"
+            )
+        print(f"{name} {show(old)} -> {show(new)}", flush=True)
+        values[name] = new
+    for name in COMMAND_LINE_ONLY:
+        values[name] = getattr(args, name)
+    return agent.Args(**values)

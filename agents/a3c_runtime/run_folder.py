@@ -1,0 +1,73 @@
+"""The run folder: where it is, that it can be written, and that one process at a time trains
+into it (an OS lock, held by the training process and released by the kernel when it ends, so a
+killed run can be resumed at once)."""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from .flags import UsageError
+
+LOCK_FILE = "run.lock"
+
+
+def run_folder_path(args: Any, checkpoint: dict | None) -> Path:
+    """--run-dir; a resumed run's own folder; or a new runs_root/<env>__<script>__<seed>__<time>."""
+    if args.run_dir:
+        return Path(args.run_dir)
+    if checkpoint is not None:
+        return Path(args.resume).resolve().parent
+    root = Path(args.runs_root)
+    if root.exists() and not root.is_dir():
+        raise UsageError(f"--runs-root {root} is not a folder")
+    return root / f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}"
+
+
+class RunFolder:
+    """The run folder, created if need be and locked for this process (`close` releases it).
+    UsageError, with nothing created, when it cannot be made or written, or another process
+    holds it."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        if path.exists() and not path.is_dir():
+            raise UsageError(f"cannot use {path} as the run folder: it is a file")
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise UsageError(f"cannot create the run folder {path}: {e.strerror or e}") from e
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise UsageError(f"cannot write into the run folder {path}: permission denied")
+        self.lock = self._lock(path / LOCK_FILE)
+
+    @staticmethod
+    def _lock(lock_path: Path) -> int:
+        # a POSIX record lock: held by this process only (forked workers do not inherit it) and
+        # released by the kernel when the process ends, however it ends
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise UsageError(f"cannot write into the run folder {lock_path.parent}: {e}") from e
+        try:
+            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise UsageError(
+                f"the run folder {lock_path.parent} is in use by process {holder} (a run or "
+                "resume training there); wait for it to end or stop it"
+            ) from None
+        with contextlib.suppress(OSError):  # the PID only names the holder to a second process
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        return fd
+
+    def close(self) -> None:
+        if self.lock >= 0:
+            os.close(self.lock)  # closing releases the lock
+            self.lock = -1

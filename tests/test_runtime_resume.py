@@ -1,0 +1,88 @@
+"""a3c_runtime.resume: --resume continues the same experiment. Every flag comes from the
+checkpoint; a flag that does not change the experiment may be given and is announced; any other
+that differs is refused in one line; a checkpoint older than a flag still loads, saying so."""
+
+import a3c_runtime as runtime
+import pytest
+from a3c_runtime.resume import RESUMABLE, given_flags, resumed_args
+from conftest import load_script, main_exit, shared_for, tiny_args
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+
+
+@pytest.fixture
+def trained(tmp_path):
+    """A checkpoint of a3c_ff trained with flags other than the defaults."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module, total_timesteps=300_000, learning_rate=3e-4, t_max=5, seed=7)
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="a3c_ff.py")
+    return module, runtime.load_checkpoint(str(path), module.AGENT), path
+
+
+def test_given_flags_reads_the_command_line():
+    module = load_script("a3c_ff")
+    argv = ["--resume", "x.pt", "--total-timesteps=10", "--num-workers", "3", "--no-anneal-lr",
+            "--capture-video", "7", "--not-a-flag"]  # fmt: skip
+    assert given_flags(argv, module.Args) == {
+        "resume", "total_timesteps", "num_workers", "anneal_lr", "capture_video"
+    }  # fmt: skip
+
+
+def test_every_flag_comes_from_the_checkpoint(trained, capsys):
+    module, checkpoint, path = trained
+    args = module.Args(resume=str(path))
+    resumed = resumed_args(module.AGENT, checkpoint, args, given_flags(["--resume"], module.Args))
+    assert (resumed.total_timesteps, resumed.learning_rate, resumed.t_max, resumed.seed) == (
+        300_000, 3e-4, 5, 7
+    )  # fmt: skip
+    assert resumed.resume == str(path)
+    assert capsys.readouterr().out == ""  # nothing changed, nothing to say
+
+
+def test_a_flag_that_keeps_the_experiment_applies_and_is_announced(trained, capsys):
+    module, checkpoint, path = trained
+    argv = ["--resume", str(path), "--total-timesteps", "1000000", "--num-workers", "1"]
+    args = module.Args(resume=str(path), total_timesteps=1_000_000, num_workers=1)
+    resumed = resumed_args(module.AGENT, checkpoint, args, given_flags(argv, module.Args))
+    assert resumed.total_timesteps == 1_000_000 and resumed.learning_rate == 3e-4
+    out = capsys.readouterr().out
+    assert out == "total_timesteps 300,000 -> 1,000,000\n"  # num_workers was 1 already
+
+
+@pytest.mark.parametrize("flags", [["--learning-rate", "0.5"], ["--t-max", "20"], ["--seed", "1"]])
+def test_a_flag_that_changes_the_experiment_is_refused_in_one_line(
+    trained, flags, monkeypatch, capsys
+):
+    module, _, path = trained
+    monkeypatch.chdir(path.parent)
+    code, err = main_exit(module, ["--resume", str(path), *flags], monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"error: {flags[0]} ") and "differs from the run's" in err
+    assert {"learning-rate": "0.0003", "t-max": "5", "seed": "7"}[flags[0][2:]] in err
+    assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt"]  # nothing written
+
+
+def test_the_same_value_of_any_flag_is_accepted(trained, capsys):
+    module, checkpoint, path = trained
+    argv = ["--resume", str(path), "--learning-rate", "0.0003", "--t-max", "5"]
+    args = module.Args(resume=str(path), learning_rate=3e-4, t_max=5)
+    resumed = resumed_args(module.AGENT, checkpoint, args, given_flags(argv, module.Args))
+    assert resumed.learning_rate == 3e-4 and capsys.readouterr().out == ""
+
+
+def test_a_checkpoint_older_than_a_flag_still_loads_stating_the_fallback(trained, capsys):
+    module, checkpoint, path = trained
+    del checkpoint["args"]["rms_init"], checkpoint["args"]["envs_per_worker"]  # as if older
+    args = module.Args(resume=str(path))
+    resumed = resumed_args(module.AGENT, checkpoint, args, {"resume"})
+    assert resumed.rms_init == 0.0 and resumed.envs_per_worker == 1
+    out = capsys.readouterr().out.splitlines()
+    assert "note: the checkpoint predates --rms-init; the run goes on with 0.0" in out
+    assert "note: the checkpoint predates --envs-per-worker; the run goes on with 1" in out
+
+
+def test_the_resumable_flags_are_the_issues():
+    assert {"total_timesteps", "time_limit", "num_workers", "eval_interval", "eval_episodes",
+            "checkpoint_interval", "log_interval", "capture_video"} <= set(RESUMABLE)  # fmt: skip

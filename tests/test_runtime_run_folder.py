@@ -1,0 +1,58 @@
+"""a3c_runtime.run_folder: an unusable run folder is a one-line error before anything is
+created, and one process at a time trains into a run folder (an OS lock that the kernel
+releases when its holder dies)."""
+
+import os
+import signal
+
+import pytest
+from a3c_runtime.flags import UsageError
+from a3c_runtime.run_folder import RunFolder
+from conftest import FORK, load_script, main_exit
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+
+
+def _hold(path, ready, release) -> None:
+    folder = RunFolder(path)
+    ready.set()
+    release.wait(30)
+    folder.close()
+
+
+def test_a_second_process_is_refused_naming_the_holder_until_the_holder_dies(tmp_path):
+    ready, release = FORK.Event(), FORK.Event()
+    holder = FORK.Process(target=_hold, args=(tmp_path / "run", ready, release))
+    holder.start()
+    assert ready.wait(30)
+    with pytest.raises(UsageError, match=f"in use by process {holder.pid} "):
+        RunFolder(tmp_path / "run")
+    os.kill(holder.pid, signal.SIGKILL)  # the kernel releases its lock
+    holder.join(30)
+    RunFolder(tmp_path / "run").close()
+
+
+def test_the_lock_is_released_on_close(tmp_path):
+    RunFolder(tmp_path).close()
+    RunFolder(tmp_path).close()
+
+
+@pytest.mark.parametrize("flag", ["--runs-root", "--run-dir"])
+def test_a_file_as_the_run_folder_exits_2_in_one_line_creating_nothing(
+    flag, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "file").write_text("not a folder")
+    target = "file" if flag == "--runs-root" else "file/run"
+    code, err = main_exit(load_script("a3c_ff"), [flag, target], monkeypatch, capsys)
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into any folder")
+def test_a_folder_without_write_permission_exits_2(tmp_path, monkeypatch, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o555)
+    code, err = main_exit(load_script("a3c_ff"), ["--runs-root", str(locked)], monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert list(locked.iterdir()) == []
