@@ -106,18 +106,20 @@ def profile(a3c, seconds: float, **flags) -> tuple[int, float, PhaseClock]:
         loop_start.append(time.perf_counter())  # building 16 emulators is not a phase
         return envs
 
+    originals = (a3c.make_vector_env, a3c.ActorCritic.forward, a3c.clip_gradients)
+    grad = torch.autograd.grad
     a3c.make_vector_env = timed_vector_env
     a3c.ActorCritic.forward = clock.timed_forward(a3c.ActorCritic.forward)
     a3c.clip_gradients = clock.timed("clip", a3c.clip_gradients)
     shared.optimizer.step = clock.timed("optimizer", shared.optimizer.step)
-    grad = torch.autograd.grad
     torch.autograd.grad = clock.timed("backward", grad)
     stop = threading.Timer(seconds, shared.stop.set)
     stop.start()
     try:
         a3c.worker(0, shared, args)
-    finally:
+    finally:  # the wrappers go: later forwards (forward_after_pause) are not the loop's
         stop.cancel()
+        a3c.make_vector_env, a3c.ActorCritic.forward, a3c.clip_gradients = originals
         torch.autograd.grad = grad
     total = time.perf_counter() - loop_start[0]
     clock.spent["other"] = total - sum(clock.spent.values())

@@ -3,8 +3,9 @@
     python benchmarks/fault_injection.py [--trials 20] [--total-timesteps 60000] [--seed 0]
 
 Each trial starts a short A3C FF run on Catch-v0 (agents/a3c_ff.py, 2 workers, the fast setting
---envs-per-worker 16, checkpoints every 10,000 steps, a learning rate and seed of the trial's
-own) and hits it at a random time with a random fault:
+--envs-per-worker 16, checkpoints every 5,000 steps, a learning rate and seed of the trial's
+own) and hits it at a random time (1-12 s after its processes start) with a fault, the trials
+taking the faults in turn:
 
 - SIGKILL of a worker, SIGKILL of the main process, SIGTERM or SIGINT of the main process;
 - the disk filling up: the run folder lies on a small tmpfs (mounted here; needs root), which a
@@ -14,7 +15,10 @@ own) and hits it at a random time with a random fault:
 Then it resumes the run (`--resume <run>/checkpoint.pt`, nothing else) until it reaches its
 target step, or starts it again where the fault came before its first checkpoint. It checks:
 that every checkpoint there was before a fault is still there and loads (a checkpoint "lost"
-otherwise), that every process of every attempt is gone once it ends (an "orphan" otherwise),
+otherwise), that no partial file (*.tmp) is left, that every process of every attempt is gone
+once it ends (an "orphan" otherwise), that the faulted run exited as it should (0 after SIGTERM
+or SIGINT, 1 after a worker's death or a failed write, the signal after SIGKILL) with its last
+line naming the surviving checkpoint and how to resume (or, with none yet, how to start again),
 that the run reached its target step, and that the finished run's flags are the ones it was
 started with. It prints a line per trial and the totals; the exit code is 1 if any check failed.
 """
@@ -37,6 +41,11 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "agents" / "a3c_ff.py"
 FAULTS = ("SIGKILL worker", "SIGKILL main", "SIGTERM", "SIGINT", "disk full")
+# the closing line of a run that ended before its last step
+HINT = (
+    r"(checkpoint \S+ \(step [\d,]+\) survives; resume: python \S+ --resume "
+    r"|no checkpoint was written in \S+; start the run again: python )"
+)
 DISK_BYTES = 64 << 20  # the tmpfs of a disk-full trial: room for the run, until it is filled
 
 
@@ -123,7 +132,7 @@ def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) ->
     run_dir = disk / "run"
     lr = f"{rng.choice([3e-4, 5e-4, 1e-3]):g}"
     flags = ["--env", "Catch-v0", "--num-workers", "2", "--envs-per-worker", "16",
-             "--total-timesteps", str(total), "--checkpoint-interval", "10000",
+             "--total-timesteps", str(total), "--checkpoint-interval", "5000",
              "--eval-interval", "20000", "--eval-episodes", "5", "--log-interval", "1",
              "--learning-rate", lr, "--seed", str(100 + index)]  # fmt: skip
     expected = {"learning_rate": float(lr), "seed": 100 + index, "total_timesteps": total,
@@ -133,7 +142,7 @@ def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) ->
     first = Attempt([*flags, "--run-dir", str(run_dir)])
     if not first.wait_for_pids():
         return {**result, "error": "the run did not start: " + first.output()[-300:]}
-    time.sleep(rng.uniform(1.0, 8.0))  # the fault's random time
+    time.sleep(rng.uniform(1.0, 12.0))  # the fault's random time
     before = checkpoint_state(run_dir / "checkpoint.pt")
     filler = None
     if fault == "SIGKILL worker":
@@ -152,7 +161,18 @@ def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) ->
     first.process.wait(300)
     result["orphans"] += orphans(first.pids)
     result["exit"] = first.process.returncode
-    result["last_line"] = (first.output().strip().splitlines() or [""])[-1][:160]
+    last_line = (first.output().strip().splitlines() or [""])[-1]
+    result["last_line"] = last_line[:160]
+    finished_first = first.process.returncode == 0 and last_line.startswith("done:")
+    expected_exit = {"SIGKILL worker": 1, "SIGKILL main": -9, "SIGTERM": 0, "SIGINT": 0,
+                     "disk full": 1}[fault]  # fmt: skip
+    hint = re.match(HINT, last_line)
+    # a run the fault reached after it finished (or, for SIGKILL of the main process, that
+    # could not say anything) is not held to the closing line
+    result["ended_as_promised"] = finished_first or (
+        first.process.returncode == expected_exit and (fault == "SIGKILL main" or bool(hint))
+    )
+    result["partial_files"] = len(list(run_dir.glob("*.tmp"))) if fault != "SIGKILL main" else 0
     after = checkpoint_state(run_dir / "checkpoint.pt")
     if before is not None and (after is None or after["step"] < before["step"]):
         result["lost"] += 1
@@ -198,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     with tempfile.TemporaryDirectory() as work:
         for index in range(opts.trials):
-            fault = rng.choice(opts.faults)
+            fault = opts.faults[index % len(opts.faults)]
             start = time.time()
             result = trial(index, fault, rng, opts.total_timesteps, Path(work))
             results.append(result)
@@ -209,25 +229,34 @@ def main(argv: list[str] | None = None) -> int:
                 f"trial {index:2d}: {fault:<14} exit {result['exit']:>3}, {result['attempts']} "
                 f"attempts{' (restarted: no checkpoint yet)' if result['restarted'] else ''}, "
                 f"final step {result['final_step']:,}, lost {result['lost']}, orphans "
-                f"{len(result['orphans'])}, same flags {result['same_flags']}, "
+                f"{len(result['orphans'])}, same flags {result['same_flags']}, ended as promised "
+                f"{result['ended_as_promised']}, "
                 f"{time.time() - start:.0f} s | {result['last_line']}",
                 flush=True,
             )
     done = [r for r in results if "skipped" not in r]
-    survived = sum(1 for r in done if r.get("reached") and r.get("same_flags"))
+    survived = sum(
+        1 for r in done if r.get("reached") and r.get("same_flags") and r.get("ended_as_promised")
+    )
+    partial = sum(r.get("partial_files", 0) for r in done)
     lost = sum(r.get("lost", 0) for r in done)
     orphan_count = sum(len(r.get("orphans", [])) for r in done)
     errors = sum(1 for r in done if "error" in r)
     every = "yes" if survived == len(done) else "no"
     print(f"\ntrials {len(done)} ({len(results) - len(done)} skipped); faults survived "
-          f"{survived}/{len(done)}; checkpoints lost or unloadable {lost}; orphan processes "
+          f"{survived}/{len(done)}; checkpoints lost or unloadable {lost}; partial files "
+          f"{partial}; orphan processes "
           f"{orphan_count}; every resumed run reached its target step with its original flags: "
           f"{every}; trials that could not start {errors}")  # fmt: skip
     for fault in FAULTS:
         count = sum(1 for r in done if r["fault"] == fault)
         if count:
             print(f"  {fault}: {count}")
-    return 0 if survived == len(done) and lost == 0 and orphan_count == 0 else 1
+    skipped = len(results) - len(done)
+    if skipped:
+        print(f"{skipped} disk-full trial(s) skipped: mounting a tmpfs needs root")
+    ok = survived == len(done) and lost == partial == orphan_count == 0
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

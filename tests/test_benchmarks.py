@@ -83,6 +83,7 @@ def test_fault_injection_resumes_runs_without_losing_a_checkpoint():
         "--faults", "SIGKILL main", "SIGTERM", timeout=600,
     )  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "faults survived 2/2; checkpoints lost or unloadable 0; orphan processes 0" in (
-        result.stdout
+    assert (
+        "faults survived 2/2; checkpoints lost or unloadable 0; partial files 0; orphan "
+        "processes 0" in result.stdout
     )

@@ -381,9 +381,10 @@ def test_catch_end_to_end(tmp_path, name, flags):
         result = run(name, "--evaluate", str(checkpoint), "--eval-episodes", "2")
         assert result.returncode == 0, result.stderr
         assert "over 2 episodes" in result.stdout
-    # the head's flags are part of the network: a different one cannot resume it
+    # the head's flags are part of the experiment: a different one cannot resume it
     result = run(name, "--resume", str(checkpoint), "--distance", "manhattan")
-    assert result.returncode == 2 and "--distance squared-euclidean" in result.stderr
+    assert result.returncode == 2
+    assert "--distance manhattan differs from the run's squared-euclidean" in result.stderr
 
 
 @pytest.mark.slow
@@ -548,9 +549,10 @@ def test_glpq_as_run_end_to_end(tmp_path, scope):
     result = run("a3c_glpq", *TINY, *budget, *as_run)
     assert result.returncode == 0, result.stderr
     assert evaluation_steps(tmp_path)[-1] >= 1500
-    # the form is part of the network: the text form cannot resume it
-    result = run("a3c_glpq", "--resume", str(tmp_path / "checkpoint.pt"), *as_run[2:])
-    assert result.returncode == 2 and "--mu-form code" in result.stderr
+    # the form is part of the experiment: the text form cannot resume it
+    result = run("a3c_glpq", "--resume", str(tmp_path / "checkpoint.pt"), "--mu-form", "text")
+    assert result.returncode == 2
+    assert "--mu-form text differs from the run's code" in result.stderr
 
 
 def test_tau_loss_scope(glpq):

@@ -134,12 +134,17 @@ def test_resume_continues_global_step(short_run, tmp_path):
     assert after["wall_time"] <= float(rows[-1]["wall_time_s"])  # saved before the final eval
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_signal_writes_checkpoint_and_exits_zero(tmp_path, signum):
+@pytest.mark.parametrize(
+    ("signum", "group"),
+    [(signal.SIGINT, True), (signal.SIGTERM, False), (signal.SIGTERM, True)],
+    ids=["SIGINT to the group", "SIGTERM", "SIGTERM to the group"],
+)
+def test_signal_writes_checkpoint_and_exits_zero(tmp_path, signum, group):
     process, pids = start(*TINY, "--total-timesteps", "10000000", "--run-dir", str(tmp_path))
     wait_for_progress(process)
-    # SIGINT as a terminal sends it (to the whole group); SIGTERM as `kill` does
-    if signum == signal.SIGINT:
+    # SIGINT as a terminal sends it (to the whole group); SIGTERM as `kill` does, or to the
+    # whole group as a batch system or `docker stop` do (the workers then end early, too)
+    if group:
         os.killpg(process.pid, signum)
     else:
         process.send_signal(signum)
@@ -301,6 +306,31 @@ def test_a_full_disk_ends_the_run_cleanly_keeping_the_last_checkpoint(tmp_path):
         step = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
         assert step >= 1000 and int(match[2].replace(",", "")) == step
         assert not list(run_dir.glob("*.tmp"))
+        assert_all_gone(pids)
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="mounting a small tmpfs needs root")
+def test_a_failed_tensorboard_write_ends_the_run_in_one_line(tmp_path):
+    """A real full disk that the TensorBoard events fill first: a 64 KB tmpfs, no checkpoint
+    before the end, progress scalars every 0.1 s."""
+    disk = tmp_path / "disk"
+    if not _mount_tmpfs(disk, 64 << 10):
+        pytest.skip("mount -t tmpfs is not permitted here")
+    try:
+        flags = [*TINY, "--total-timesteps", "10000000", "--log-interval", "0.1",
+                 "--checkpoint-interval", "1000000000", "--eval-interval", "1000000000",
+                 "--run-dir", str(disk / "run")]  # fmt: skip
+        process, pids = start(*flags)
+        _, stderr = process.communicate(timeout=180)
+        assert process.returncode == 1
+        (events,) = (disk / "run").glob("events.out.tfevents.*")
+        assert stderr.strip().splitlines() == [
+            f"error: could not write {events}: No space left on device",
+            f"no checkpoint was written in {disk / 'run'}; start the run again: python {SCRIPT} "
+            + " ".join(flags),
+        ], stderr
         assert_all_gone(pids)
     finally:
         subprocess.run(["umount", "-l", str(disk)], check=False)

@@ -101,7 +101,7 @@ def test_a_replay_that_leaves_recorded_rows_is_an_error():
     with torch.inference_mode():
         layer(frames[:4])
     with pytest.raises(RuntimeError, match="1 recorded rows .* were not replayed"):
-        layer(frames[4:])
+        layer(frames[:3])
     assert replay.mode is None and layer.count == 0  # the next rollout starts afresh
 
 
@@ -209,3 +209,14 @@ def test_workers_with_one_env_go_without_the_replay():
     assert all(type(m) in (nn.Conv2d, nn.Linear) for m in model.modules() if hasattr(m, "weight"))
     replay = runtime.replay_activations(model, torch.zeros(21, 2, 4, 84, 84))
     assert replay is not None and len(replay.layers) == 5
+
+
+def test_a_learning_forward_that_does_not_start_at_the_first_acting_state_is_an_error():
+    layer = nn.Linear(3, 2)
+    frames = torch.randn(5, 3)
+    runtime.ActivationReplay(layer, frames)
+    with torch.inference_mode():
+        layer(frames[0:1])
+        layer(frames[1:2])
+    with pytest.raises(RuntimeError, match="must start at the rollout's first acting state"):
+        layer(frames[1:4])  # shifted by one: it would replay the wrong rows

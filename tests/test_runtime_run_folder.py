@@ -32,9 +32,24 @@ def test_a_second_process_is_refused_naming_the_holder_until_the_holder_dies(tmp
     RunFolder(tmp_path / "run").close()
 
 
+def _try_lock(path, results) -> None:
+    try:
+        RunFolder(path).close()
+        results.put("locked")
+    except UsageError as e:
+        results.put(str(e))
+
+
 def test_the_lock_is_released_on_close(tmp_path):
-    RunFolder(tmp_path).close()
-    RunFolder(tmp_path).close()
+    """POSIX locks are per process: another process tells whether close released it."""
+    folder = RunFolder(tmp_path)
+    results = FORK.SimpleQueue()
+    for expected in ("in use by process", "locked"):
+        child = FORK.Process(target=_try_lock, args=(tmp_path, results))
+        child.start()
+        child.join(30)
+        assert expected in results.get()
+        folder.close()
 
 
 @pytest.mark.parametrize("flag", ["--runs-root", "--run-dir"])

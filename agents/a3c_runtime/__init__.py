@@ -97,8 +97,9 @@ class Agent:
 
     def trained_args(self, checkpoint: dict) -> dict[str, Any]:
         """The flags a checkpoint was trained with; a flag it predates has its
-        checkpoint_defaults value, else (left out here) the flag's default."""
-        return {**self.checkpoint_defaults, **checkpoint["args"]}
+        checkpoint_defaults value (or, for --precision, fp32: the runs before the flag), else
+        (left out here) the flag's default."""
+        return {"precision": "fp32", **self.checkpoint_defaults, **checkpoint["args"]}
 
     def build_network(self, num_actions: int, args: Any) -> nn.Module:
         # channels_last makes oneDNN's convolution backward about 2x faster on CPU

@@ -4,8 +4,10 @@ actor-learner processes, an evaluator) and `run` (train, or --evaluate a checkpo
 from __future__ import annotations
 
 import os
+import shlex
 import sys
 import time
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -28,15 +30,21 @@ from .run_log import RunLog, format_seconds
 from .supervision import FORK, RunFailed, Supervisor
 
 
-def train(agent: Any, args: Any) -> dict:
+def train(
+    agent: Any, args: Any, checkpoint: dict | None = None, folder: RunFolder | None = None
+) -> dict:
     """A3C (thesis section 2.2.3, Algorithm 1): the global network theta and its optimizer
     statistics live in shared memory; N actor-learner processes each run `agent.worker`, which
     syncs theta, acts and updates theta without locks (Hogwild); an evaluator process plays the
     thesis's evaluation protocol beside them. Returns the run's summary. Raises UsageError for a
     bad checkpoint, flag, env or run folder before anything is created; RunFailed when a process
-    dies and WriteFailed when a file cannot be written, each with `run_dir` set."""
+    dies and WriteFailed when a file cannot be written, each with `run_dir` set. `run` passes a
+    resumed run's checkpoint and its folder, locked before the checkpoint was read."""
     torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
-    checkpoint = load_checkpoint(args.resume, agent) if args.resume else None
+    if args.resume and folder is None:
+        folder = RunFolder(run_folder_path(args, resuming=True))
+    if args.resume and checkpoint is None:
+        checkpoint = load_checkpoint(args.resume, agent)
     seed_everything(args.seed)
     num_actions = probe_env(agent.make_env, args.env)
     # the network is built before the run folder: its constructor rejects bad flags
@@ -45,7 +53,8 @@ def train(agent: Any, args: Any) -> dict:
         restore(shared, checkpoint, args, args.resume, agent)
     start_step = shared.global_step()
     initial_params = [p.detach().clone() for p in shared.params]  # the evaluator's step 0
-    folder = RunFolder(run_folder_path(args, checkpoint))  # locked: one writer per run folder
+    if folder is None:  # a new run's folder: created now that its flags have been checked
+        folder = RunFolder(run_folder_path(args, resuming=False))  # locked: one writer
     run_dir = folder.path
     evaluations = FORK.SimpleQueue()
     processes = {f"worker {i}": (agent.worker, i, shared, args) for i in range(args.num_workers)}
@@ -60,14 +69,15 @@ def train(agent: Any, args: Any) -> dict:
     log = None
     try:
         # after the fork: the TensorBoard writer's thread must not be forked
-        log = RunLog(run_dir, args, checkpoint["wall_time"] if checkpoint else 0.0)
+        wall_time = checkpoint["wall_time"] if checkpoint else 0.0
+        log = RunLog(run_dir, args, wall_time, resumed_step=start_step)
         outcome, sps = watch(agent, supervisor, shared, args, log, evaluations, run_dir, start_step)
         log.close()
     except BaseException as e:
         supervisor.stop(finished=False)  # (stopped already, unless RunLog itself failed)
         if log is not None:
             log.close(quietly=True)
-        if isinstance(e, (RunFailed, WriteFailed)):
+        if isinstance(e, Exception):
             e.run_dir = run_dir  # for the closing line
         raise
     finally:
@@ -103,16 +113,18 @@ def watch(
     try:
         while outcome is None and not supervisor.failures:
             time.sleep(0.1)
-            now, global_step = time.time(), shared.global_step()
             # exit codes before the step: a worker that ended normally saw step >= T_max
-            supervisor.collect_failures(global_step, args.total_timesteps)
+            codes = supervisor.exit_codes()
+            now, global_step = time.time(), shared.global_step()
             if steady_start is None and bool((shared.steps > 0).all()):
                 steady_start = (now, global_step)
+            supervisor.read_errors()
             drain()
-            if supervisor.signal_name is not None:
-                outcome = f"stopped by {supervisor.signal_name}"
+            if supervisor.signal_name is not None:  # (a signal to the whole group ends the
+                outcome = f"stopped by {supervisor.signal_name}"  # workers early: not a failure)
                 break
-            if not supervisor.failures and supervisor.workers_done():
+            supervisor.check_exits(codes, global_step, args.total_timesteps)
+            if not supervisor.failures and supervisor.workers_done(codes):
                 outcome = "done"
             elif args.time_limit is not None and now - log.start >= args.time_limit:
                 outcome = "time limit"
@@ -193,10 +205,17 @@ def run(agent: Any) -> int:
         if args.evaluate:
             evaluate(agent, args)
             return 0
-        if args.resume:  # the same experiment: the checkpoint's flags
-            checkpoint = load_checkpoint(args.resume, agent)
-            args = resumed_args(agent, checkpoint, args, given_flags(sys.argv[1:], agent.Args))
-        summary = train(agent, resolve_defaults(args))
+        if args.resume:  # the same experiment, its folder locked before the checkpoint is read
+            folder = RunFolder(run_folder_path(args, resuming=True))
+            try:
+                checkpoint = load_checkpoint(args.resume, agent)
+                given = given_flags(sys.argv[1:], agent.Args)
+                args = resumed_args(agent, checkpoint, args, given)
+                summary = train(agent, resolve_defaults(args), checkpoint, folder)
+            finally:
+                folder.close()
+        else:
+            summary = train(agent, resolve_defaults(args))
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -204,6 +223,12 @@ def run(agent: Any) -> int:
         print(f"error: {e}", file=sys.stderr)
         print(resume_hint(agent, e.run_dir), file=sys.stderr, flush=True)
         return 1
+    except Exception as e:  # a bug: its traceback, then how to go on
+        if hasattr(e, "run_dir"):
+            traceback.print_exc()
+            print(resume_hint(agent, e.run_dir), file=sys.stderr, flush=True)
+            return 1
+        raise
     if summary["outcome"] != "done":
         print(resume_hint(agent, Path(summary["run_dir"])), flush=True)
     return 0
@@ -211,12 +236,14 @@ def run(agent: Any) -> int:
 
 def resume_hint(agent: Any, run_dir: Path) -> str:
     """The closing line of a run that ended before T_max: its surviving checkpoint, that
-    checkpoint's step, and the command that resumes it."""
+    checkpoint's step, and the command that resumes it (or, with none, starts it again)."""
+    script = sys.argv[0] if os.path.basename(sys.argv[0]) == agent.script else agent.script
     path = run_dir / "checkpoint.pt"
     step = checkpoint_step(path) if path.exists() else None
     if step is None:
-        return f"no checkpoint was written in {run_dir}: start the run again to train it"
+        again = shlex.join(["python", script, *sys.argv[1:]])
+        return f"no checkpoint was written in {run_dir}; start the run again: {again}"
     relative = os.path.relpath(path)
-    shown = path if relative.startswith("..") else relative
-    script = sys.argv[0] if os.path.basename(sys.argv[0]) == agent.script else agent.script
-    return f"checkpoint {shown} (step {step:,}) survives; resume: python {script} --resume {shown}"
+    shown = str(path) if relative.startswith("..") else relative
+    resume = shlex.join(["python", script, "--resume", shown])
+    return f"checkpoint {shown} (step {step:,}) survives; resume: {resume}"

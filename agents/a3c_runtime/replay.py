@@ -51,6 +51,7 @@ class ActivationReplay:
     def __init__(self, model: nn.Module, rollout_frames: torch.Tensor) -> None:
         self.storage = rollout_frames.untyped_storage().data_ptr()
         self.mode: str | None = None  # "record", "replay" or None (plain layers)
+        self.first_offset: int | None = None  # where this rollout's first acting state lies
         self.layers: list[_ReplayedConv2d | _ReplayedLinear] = []
         for layer in model.modules():
             replayed = {nn.Conv2d: _ReplayedConv2d, nn.Linear: _ReplayedLinear}.get(type(layer))
@@ -70,10 +71,17 @@ class ActivationReplay:
         if not torch.is_tensor(frames) or frames.untyped_storage().data_ptr() != self.storage:
             self.mode = None
         elif torch.is_grad_enabled():
+            if self.first_offset is not None and frames.storage_offset() != self.first_offset:
+                raise RuntimeError(
+                    "ActivationReplay: the learning forward must start at the rollout's first "
+                    "acting state"
+                )
             self.mode = "replay"
             for layer in self.layers:
                 layer.cursor = 0
         else:
+            if self.first_offset is None:
+                self.first_offset = frames.storage_offset()
             self.mode = "record"
 
     def _after_forward(self, _model: nn.Module, _inputs: Any, _output: Any) -> None:
@@ -82,6 +90,7 @@ class ActivationReplay:
             return
         # the rollout is over: the next acting forward starts a new recording
         left = [(layer, layer.count - layer.cursor) for layer in self.layers]
+        self.first_offset = None
         for layer in self.layers:
             layer.count = 0
         for layer, rows in left:

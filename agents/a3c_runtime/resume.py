@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from .flags import UsageError
+from .flags import UsageError, resolve_precision
 
 RESUMABLE = (
     "total_timesteps",
@@ -56,18 +56,18 @@ def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> An
     trained = agent.trained_args(checkpoint)
     values = {}
     for name in (f.name for f in dataclasses.fields(agent.Args)):
-        if name in trained:
-            values[name] = trained[name]
-        else:  # a flag newer than the checkpoint: its default, as the run had no such flag
-            values[name] = getattr(agent.Args(), name)
-            if name not in COMMAND_LINE_ONLY:
-                print(
-                    f"note: the checkpoint predates {flag(name)}; the run goes on with "
-                    f"{show(values[name])}",
-                    flush=True,
-                )
+        # a flag newer than the checkpoint: the value the run had (trained_args), else its default
+        values[name] = trained[name] if name in trained else getattr(agent.Args(), name)
+        if name not in checkpoint["args"] and name not in COMMAND_LINE_ONLY:
+            print(
+                f"note: the checkpoint predates {flag(name)}; the run goes on with "
+                f"{show(values[name])}",
+                flush=True,
+            )
     for name in sorted(given - set(COMMAND_LINE_ONLY)):
         new, old = getattr(args, name), values[name]
+        if name == "precision":  # --precision auto: what it resolves to here
+            new = resolve_precision(new, values["envs_per_worker"])
         if new == old:
             continue
         if name not in RESUMABLE:

@@ -16,11 +16,12 @@ from .flags import UsageError
 LOCK_FILE = "run.lock"
 
 
-def run_folder_path(args: Any, checkpoint: dict | None) -> Path:
-    """--run-dir; a resumed run's own folder; or a new runs_root/<env>__<script>__<seed>__<time>."""
+def run_folder_path(args: Any, resuming: bool) -> Path:
+    """--run-dir; a resumed run's own folder (its checkpoint's); or a new
+    runs_root/<env>__<script>__<seed>__<time>."""
     if args.run_dir:
         return Path(args.run_dir)
-    if checkpoint is not None:
+    if resuming:
         return Path(args.resume).resolve().parent
     root = Path(args.runs_root)
     if root.exists() and not root.is_dir():
@@ -44,6 +45,9 @@ class RunFolder:
         if not os.access(path, os.W_OK | os.X_OK):
             raise UsageError(f"cannot write into the run folder {path}: permission denied")
         self.lock = self._lock(path / LOCK_FILE)
+        for stale in path.glob("*.tmp"):  # a checkpoint half written when its run was killed
+            with contextlib.suppress(OSError):
+                stale.unlink()
 
     @staticmethod
     def _lock(lock_path: Path) -> int:
@@ -63,8 +67,9 @@ class RunFolder:
                 "resume training there); wait for it to end or stop it"
             ) from None
         with contextlib.suppress(OSError):  # the PID only names the holder to a second process
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            pid = f"{os.getpid()}\n".encode()
+            os.pwrite(fd, pid, 0)  # written, then cut to length: never an empty file
+            os.ftruncate(fd, len(pid))
         return fd
 
     def close(self) -> None:

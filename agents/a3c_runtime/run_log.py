@@ -7,6 +7,7 @@ import contextlib
 import csv
 import math
 import os
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from .checkpoints import WriteFailed
+from .checkpoints import WriteFailed, write_atomically
 from .hogwild import Shared
 
 CSV_COLUMNS = ["global_step", "wall_time_s", "mean_return", "std_return", "episodes"]
@@ -26,6 +27,18 @@ def format_seconds(seconds: float) -> str:
     minutes, secs = divmod(int(seconds), 60)
     hours, minutes = divmod(minutes, 60)
     return f"{hours}h{minutes:02d}m{secs:02d}s" if hours else f"{minutes}m{secs:02d}s"
+
+
+def drop_rows_after(csv_path: Path, step: int) -> None:
+    """Rewrite evaluations.csv (atomically) without the rows after global step `step`."""
+    with open(csv_path, newline="") as f:
+        lines = f.read().splitlines(keepends=True)
+    kept = [line for line in lines[1:] if int(line.split(",", 1)[0]) <= step]
+    if len(kept) < len(lines) - 1:
+        write_atomically(csv_path, "".join(lines[:1] + kept).encode())
+        dropped = len(lines) - 1 - len(kept)
+        print(f"note: {csv_path.name}: {dropped} evaluation(s) logged after the checkpoint's "
+              f"step {step:,} dropped", flush=True)  # fmt: skip
 
 
 def last_evaluation(csv_path: Path) -> dict | None:
@@ -45,27 +58,50 @@ class RunLog:
     that fails raises WriteFailed naming the file; a failed row of evaluations.csv is taken back,
     so the file stays whole."""
 
-    def __init__(self, run_dir: Path, args: Any, wall_offset: float):
+    def __init__(self, run_dir: Path, args: Any, wall_offset: float, resumed_step: int = 0):
+        """resumed_step: a resumed run's checkpoint step. What the run logged after it (it ended
+        without a checkpoint at its last step: a killed process, a failed write) is dropped, so
+        the resumed run's rows and scalars carry on from the checkpoint without repeats."""
         from torch.utils.tensorboard import SummaryWriter
 
         self.args, self.start, self.wall_offset = args, time.time(), wall_offset
         self.csv_path = run_dir / "evaluations.csv"
         self.events_path = run_dir / "events.out.tfevents.*"
+        if resumed_step and self.csv_path.exists():
+            drop_rows_after(self.csv_path, resumed_step)
         self.last_eval = last_evaluation(self.csv_path)  # a resumed run's, until its next one
         self.recent_return = float("nan")
         self.eval_seconds = 0.0
-        new_csv = not self.csv_path.exists()
         try:
             self.csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         except OSError as e:
             raise WriteFailed(self.csv_path, e) from e
         self.writer = None
-        if new_csv:
+        if os.fstat(self.csv_fd).st_size == 0:
             self.append_row(CSV_COLUMNS)
+        self.quiet_writer_thread()
         with self.writing_events():
-            self.writer = SummaryWriter(str(run_dir))
+            # purge_step: TensorBoard hides a resumed run's old events from that step on
+            self.writer = SummaryWriter(
+                str(run_dir), purge_step=resumed_step + 1 if resumed_step else None
+            )
+            self.events_path = Path(self.writer.file_writer.get_logdir()) / os.path.basename(
+                getattr(self.writer.file_writer.event_writer, "_file_name", "events.out.tfevents.*")
+            )
             table = "\n".join(f"|{k}|{v}|" for k, v in vars(args).items())
             self.writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + table)
+
+    @staticmethod
+    def quiet_writer_thread() -> None:
+        """TensorBoard's writer thread re-raises a failed write, which Python would print as a
+        traceback; the main thread reports it as one line (WriteFailed) at the next call."""
+        default = threading.excepthook
+
+        def hook(info: threading.ExceptHookArgs) -> None:
+            if not issubclass(info.exc_type, OSError):
+                default(info)
+
+        threading.excepthook = hook
 
     def append_row(self, values: Any) -> None:
         """One line of evaluations.csv, all or nothing."""
@@ -106,17 +142,19 @@ class RunLog:
 
     def progress(self, global_step: int, sps: float, lr: float, stats_delta: torch.Tensor) -> None:
         """Log the scalars of the last interval; stats_delta holds Shared.STATS summed."""
-        episodes, return_sum, length_sum, updates = stats_delta[:4].tolist()
+        stats = dict(zip(Shared.STATS, stats_delta.tolist(), strict=True))
+        episodes, updates = stats["episodes"], stats["updates"]
         with self.writing_events():
             self.writer.add_scalar("charts/SPS", sps, global_step)
             self.writer.add_scalar("charts/learning_rate", lr, global_step)
             if episodes > 0:
-                self.recent_return = return_sum / episodes
+                self.recent_return = stats["return_sum"] / episodes
                 self.writer.add_scalar("charts/episodic_return", self.recent_return, global_step)
-                self.writer.add_scalar("charts/episodic_length", length_sum / episodes, global_step)
+                length = stats["length_sum"] / episodes
+                self.writer.add_scalar("charts/episodic_length", length, global_step)
             if updates > 0:
-                for key, total in zip(Shared.STATS[4:], stats_delta[4:].tolist(), strict=True):
-                    self.writer.add_scalar(f"losses/{key}", total / updates, global_step)
+                for key in ("policy_loss", "value_loss", "entropy", "grad_norm"):
+                    self.writer.add_scalar(f"losses/{key}", stats[key] / updates, global_step)
         total_steps = self.args.total_timesteps
         eta = (total_steps - global_step) / sps if sps > 0 else float("inf")
         last = self.last_eval

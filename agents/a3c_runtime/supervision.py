@@ -88,23 +88,31 @@ class Supervisor:
     def pids(self) -> str:
         return ", ".join(f"{name} {p.pid}" for name, p in self.processes.items())
 
-    def collect_failures(self, global_step: int | None = None, total: int = 0) -> None:
-        """Failures reported by the processes and, with global_step, processes that ended
-        early: exit 0 is only expected of a worker that reached T_max."""
+    def exit_codes(self) -> dict[str, int | None]:
+        return {name: process.exitcode for name, process in self.processes.items()}
+
+    def read_errors(self) -> None:
+        """The failures the processes reported (name and traceback)."""
         while not self.errors.empty():
             name, trace = self.errors.get()
             self.failures.append(f"{name} failed:\n{trace}")
-        if global_step is None or self.failures:
+
+    def check_exits(self, codes: dict[str, int | None], global_step: int, total: int) -> None:
+        """A process that ended, from exit codes read before global_step: exit 0 is only
+        expected of a worker that reached T_max."""
+        if self.failures:
             return
-        for name, process in self.processes.items():
-            code = process.exitcode
+        for name, code in codes.items():
             early = name == "evaluator" or global_step < total
             if code is not None and (code != 0 or early):
-                self.failures.append(f"{name} (pid {process.pid}) {describe_exit(code)}")
+                self.failures.append(
+                    f"{name} (pid {self.processes[name].pid}) {describe_exit(code)}"
+                )
                 return
 
-    def workers_done(self) -> bool:
-        return all(p.exitcode == 0 for n, p in self.processes.items() if n != "evaluator")
+    @staticmethod
+    def workers_done(codes: dict[str, int | None]) -> bool:
+        return all(code == 0 for name, code in codes.items() if name != "evaluator")
 
     def stop(self, finished: bool) -> None:
         """Stop every process: the workers finish their rollout; a finished run's evaluator
@@ -124,7 +132,7 @@ class Supervisor:
             if process.is_alive():
                 process.kill()
                 process.join(1)
-        self.collect_failures()
+        self.read_errors()
         evaluator_failed = evaluator is not None and evaluator.exitcode not in (0, None)
         if evaluator_failed and finished and self.signal_name is None and not self.failures:
             self.failures.append(f"evaluator {describe_exit(evaluator.exitcode)}")
