@@ -146,8 +146,9 @@ def make_env(env_id: str, render_mode: str | None = None) -> gym.Env:
 
 
 def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
-    """make_env's envs, num_envs of them stepped together (Catch: its NumPy vector env); an
-    ended episode's env is reset in the same step (catch_env.wrappers.make_vector_env)."""
+    """make_env's preprocessing for num_envs envs stepped together (Catch: its NumPy vector
+    env; ALE: ale-py's C++ vector env, one emulator thread); an ended episode's env is reset in
+    the same step (catch_env.wrappers.make_vector_env)."""
     from catch_env.wrappers import make_vector_env as make_wrapped_vector_env
 
     return make_wrapped_vector_env(env_id, num_envs)

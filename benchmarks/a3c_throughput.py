@@ -4,6 +4,8 @@
                                         [--num-workers N] [--no-baseline] [--env Catch-v0]
                                         [--envs-per-worker 1 [K ...]] [--precision fp32 [...]]
                                         [--replay on [off]] [--eval-episodes N]
+                                        [--env-backend native [python]] [--env-threads 1 [T ...]]
+                                        [--ceilings]
 
 It runs each script's own training loop (evaluations included) for --seconds and reports the
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
@@ -12,6 +14,14 @@ the same run. Every script runs at every setting, each value of --envs-per-worke
 --precision (K = 1 is the thesis's algorithm) and each --replay: off turns the scripts'
 ActivationReplay off (the learning pass recomputes the forward), to measure what it saves.
 --replay off replaces the scripts' replay_activations (this process, before the workers fork).
+On an ALE game, --env-backend and --env-threads choose catch_env.wrappers.make_vector_env's
+backend (native: ale-py's C++ AtariVectorEnv on --env-threads emulator threads per worker;
+python: today's SyncVectorEnv of Gymnasium-wrapped envs), also before the workers fork.
+
+--ceilings (ALE games) measures, in the same run, the two bounds of a learning agent on this
+machine: the emulator's (AtariVectorEnv with random actions, 16 envs on all cores, no learner)
+and the network's (a3c_ff on Catch-v0 at the first K and precision, where the env costs almost
+nothing), and the bound of the two sharing the cores, 1 / (1 / emulator + 1 / network).
 With --rounds R the baseline and the scripts take turns R times and the means are reported, so
 that slow drifts of a shared machine's speed fall on all of them alike.
 
@@ -26,6 +36,7 @@ printed before each measurement.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import inspect
 import os
@@ -43,6 +54,7 @@ import torch.multiprocessing as mp
 from torch.utils.flop_counter import FlopCounterMode
 
 import catch_env  # noqa: F401  (registers Catch-v0)
+import catch_env.wrappers
 
 AGENTS = Path(__file__).resolve().parents[1] / "agents"
 FF_SCRIPT = AGENTS / "a3c_ff.py"
@@ -208,6 +220,26 @@ def num_actions(a3c, env_id: str) -> int:
     return n
 
 
+MAKE_VECTOR_ENV = catch_env.wrappers.make_vector_env
+
+
+def emulator_ceiling(env_id: str, seconds: float, num_envs: int = 16) -> float:
+    """Steps/s of ale-py's AtariVectorEnv alone: random actions, `num_envs` envs on as many
+    emulator threads as cores, no learner."""
+    envs = MAKE_VECTOR_ENV(env_id, num_envs, num_threads=os.cpu_count() or 1)
+    envs.reset(seed=0)
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, envs.single_action_space.n, (64, num_envs))
+    for i in range(50):
+        envs.step(actions[i % 64])
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        envs.step(actions[steps % 64])
+        steps += 1
+    envs.close()
+    return steps * num_envs / (time.perf_counter() - start)
+
+
 def run_script(
     a3c,
     env: str,
@@ -217,10 +249,15 @@ def run_script(
     precision: str,
     eval_episodes: int | None = None,
     replay: bool = True,
+    env_backend: str = "native",
+    env_threads: int = 1,
 ) -> tuple[float, float, float]:
     """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers, the
     page faults per step of the run's processes)."""
     a3c.replay_activations = a3c_runtime.replay_activations if replay else no_replay
+    catch_env.wrappers.make_vector_env = functools.partial(
+        MAKE_VECTOR_ENV, backend=env_backend, num_threads=env_threads
+    )
     with tempfile.TemporaryDirectory() as run_dir:
         args = a3c.Args(num_workers=num_workers, time_limit=seconds, run_dir=run_dir, env=env,
                         log_interval=max(5.0, seconds / 4), envs_per_worker=envs_per_worker,
@@ -229,6 +266,7 @@ def run_script(
         cpu_before, faults_before = children_cpu_seconds(), children_page_faults()
         summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
     a3c.replay_activations = a3c_runtime.replay_activations
+    catch_env.wrappers.make_vector_env = MAKE_VECTOR_ENV
     per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
     faults = (children_page_faults() - faults_before) / summary["global_step"]
     return summary["sps"], per_cpu, faults
@@ -252,7 +290,16 @@ def main() -> None:
                         help="the precisions to measure")  # fmt: skip
     parser.add_argument("--replay", nargs="+", default=["on"], choices=["on", "off"],
                         help="ActivationReplay on (as the scripts run) and/or off")  # fmt: skip
+    parser.add_argument("--env-backend", nargs="+", default=["native"],
+                        choices=["native", "python"],
+                        help="ALE games: make_vector_env's backend(s) to measure")  # fmt: skip
+    parser.add_argument("--env-threads", type=int, nargs="+", default=[1],
+                        help="ALE games, native backend: emulator threads per worker")  # fmt: skip
+    parser.add_argument("--ceilings", action="store_true",
+                        help="ALE games: also measure the two ceilings")  # fmt: skip
     opts = parser.parse_args()
+    if min(opts.env_threads) < 1:
+        parser.error("--env-threads must be >= 1")
     if opts.eval_episodes is not None and opts.eval_episodes < 1:
         parser.error("--eval-episodes must be >= 1")
     if min(opts.envs_per_worker) < 1:
@@ -275,11 +322,20 @@ def main() -> None:
         a3c.resolve_defaults(a3c.Args(env=opts.env))
     except a3c_runtime.UsageError as e:
         parser.error(str(e))
+    atari = catch_env.wrappers.is_atari(opts.env)
+    if opts.ceilings and not atari:
+        parser.error("--ceilings needs an ALE game (--env BreakoutNoFrameskip-v4, ...)")
+    env_settings = [("native", t) for t in dict.fromkeys(opts.env_threads)] * (
+        "native" in opts.env_backend
+    ) + [("python", 1)] * ("python" in opts.env_backend)
+    if not atari:
+        env_settings = [("native", 1)]  # Catch: the backend does not apply
     settings = [
-        (k, p, r)
+        (k, p, r, backend, threads)
         for k in dict.fromkeys(opts.envs_per_worker)
         for p in dict.fromkeys(opts.precision)
         for r in dict.fromkeys(opts.replay)
+        for backend, threads in env_settings
     ]
 
     cpu = platform.processor() or platform.machine()
@@ -301,48 +357,75 @@ def main() -> None:
         print(f"{name}: {flops / 1e6:.1f} MFLOP per env step (acting forward + 1/t_max of the "
               f"rollout's forward and backward) -> bound {bounds[name]:,.0f} steps/s")  # fmt: skip
 
-    baselines = []
+    baselines, ceilings = [], []
     measured = {(name, *setting): [] for setting in settings for name in scripts}
     for _ in range(opts.rounds):
+        if opts.ceilings:
+            print(f"load average {os.getloadavg()[0]:.2f}; ceilings ...", flush=True)
+            k, precision = settings[0][:2]
+            emulator = emulator_ceiling(opts.env, opts.seconds)
+            network = run_script(a3c, "Catch-v0", num_workers, opts.seconds, k, precision, 1)[0]
+            ceilings.append((emulator, network))
+            print(f"ceilings: emulator {emulator:,.0f} steps/s, network {network:,.0f} steps/s")
         if not opts.no_baseline:  # every round, so that drifts of the host fall on it too
             print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
             baselines.append(run_baseline(a3c, opts.env, num_workers, opts.seconds, warmup=3.0))
             sps, per_cpu, faults = baselines[-1]
             print(f"baseline: {sps:,.0f} steps/s ({per_cpu:,.0f} per {num_workers} "
                   f"CPU-seconds; {faults:.1f} page faults per step)")  # fmt: skip
-        for name, k, precision, replay in measured:
+        for name, k, precision, replay, backend, threads in measured:
             print(
                 f"load average {os.getloadavg()[0]:.2f}; {name} K={k} {precision} replay "
-                f"{replay} ...",
+                f"{replay} env {backend} threads {threads} ...",
                 flush=True,
             )
             result = run_script(scripts[name], opts.env, num_workers, opts.seconds, k, precision,
-                                opts.eval_episodes, replay == "on")  # fmt: skip
-            print(f"{name}: {result[2]:.1f} page faults per step")
-            measured[name, k, precision, replay].append(result)
+                                opts.eval_episodes, replay == "on", backend, threads)  # fmt: skip
+            print(f"{name}: {result[0]:,.0f} steps/s, {result[2]:.1f} page faults per step")
+            measured[name, k, precision, replay, backend, threads].append(result)
 
     baseline = np.mean(baselines, axis=0) if baselines else None
     if len(baselines) > 1:
         print(f"\nbaseline, mean of {len(baselines)} rounds: {baseline[0]:,.0f} steps/s "
               f"(rounds: {', '.join(f'{b[0]:,.0f}' for b in baselines)})")  # fmt: skip
-    print(f"\n{'script':<12} {'K':>3} {'precision':>10} {'replay':>6} {'steps/s':>9} "
+    print(f"\n{'script':<12} {'K':>3} {'precision':>10} {'replay':>6} {'env':>9} {'steps/s':>9} "
           f"{'per CPU-s':>10} {'of bound':>9} {'time/step vs a3c_ff':>20} "
           f"{'vs baseline':>11}")  # fmt: skip
-    for (name, k, precision, replay), runs in measured.items():
+    for (name, k, precision, replay, backend, threads), runs in measured.items():
         sps, per_cpu, _ = np.mean(runs, axis=0)
-        ff_sps, ff_per_cpu, _ = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
-        line = f"{name:<12} {k:>3} {precision:>10} {replay:>6} {sps:>9,.0f} {per_cpu:>10,.0f} "
+        ff = measured[("a3c_ff", k, precision, replay, backend, threads)]
+        ff_sps, ff_per_cpu, _ = np.mean(ff, axis=0)
+        env = (f"{backend}/{threads}" if backend == "native" else backend) if atari else "-"
+        line = f"{name:<12} {k:>3} {precision:>10} {replay:>6} {env:>9} {sps:>9,.0f} "
+        line += f"{per_cpu:>10,.0f} "
         line += f"{per_cpu / bounds[name]:>9.0%} {ff_sps / sps:>9.2f}x wall "
         line += f"{ff_per_cpu / per_cpu:>5.2f}x CPU"
         if baseline is not None:
             line += f" {sps / baseline[0]:>10.2f}x"
         print(line)
     if baseline is not None:
-        for k, precision, replay in settings:
-            ff_sps, ff_per_cpu, _ = np.mean(measured["a3c_ff", k, precision, replay], axis=0)
-            print(f"a3c_ff K={k} {precision} replay {replay} vs the baseline loop: "
+        for setting in settings:
+            ff_sps, ff_per_cpu, _ = np.mean(measured[("a3c_ff", *setting)], axis=0)
+            print(f"a3c_ff {setting} vs the baseline loop: "
                   f"{ff_sps / baseline[0]:.2f}x steps/s, {ff_per_cpu / baseline[1]:.2f}x per "
                   f"CPU-second")  # fmt: skip
+    if atari and len(env_settings) > 1:
+        print(f"\nsteps/s of a3c_ff against the first env setting, {env_settings[0]}, same run:")
+        for setting in settings:
+            first = measured[("a3c_ff", *setting[:3], *env_settings[0])]
+            ratio = np.mean(measured[("a3c_ff", *setting)], axis=0)[0] / np.mean(first, axis=0)[0]
+            print(f"  {setting}: {ratio:.2f}x")
+    if ceilings:
+        emulator, network = np.mean(ceilings, axis=0)
+        bound = 1 / (1 / emulator + 1 / network)
+        print(f"\nceilings, mean of {len(ceilings)} round(s): emulator {emulator:,.0f} steps/s "
+              f"(AtariVectorEnv, 16 envs, {os.cpu_count()} threads, random actions), network "
+              f"{network:,.0f} (a3c_ff on Catch-v0, K={settings[0][0]} {settings[0][1]}); "
+              f"the two sharing the cores: 1 / (1/{emulator:,.0f} + 1/{network:,.0f}) = "
+              f"{bound:,.0f} steps/s")  # fmt: skip
+        for setting in settings:
+            sps = np.mean(measured[("a3c_ff", *setting)], axis=0)[0]
+            print(f"  a3c_ff {setting}: {sps:,.0f} steps/s = {sps / bound:.0%} of that bound")
 
 
 if __name__ == "__main__":

@@ -223,24 +223,169 @@ class FrameStackVectorEnv(VectorWrapper):
         return self._stack, rewards, terminated, truncated, infos
 
 
+class AtariNativeVectorEnv(VectorWrapper):
+    """ALE games on ale-py's C++ vector env (`ale_py.vector_env.AtariVectorEnv`, ported from
+    EnvPool), with `make_env`'s contract: observations (num_envs, frame_stack, 84, 84) uint8,
+    same-step autoreset with the last observation in `infos["final_obs"]`, the raw game score
+    and length in `infos["final_info"]["episode"]` ("r", "l"), rewards clipped to [-1, 1].
+
+    The emulators, the action repeat of 4 with the max of the last two frames, the grayscale
+    84x84 resize, the no-op starts and FIRE on reset run in C++ on `num_threads` threads. The
+    frame stack, the clipping and the episode statistics are kept here, so that the score is
+    the unclipped one and an episode's first observation repeats its first frame, as in
+    `make_env`. Against a same-step `SyncVectorEnv` of `make_env` envs on the same seeds and
+    actions (tests/test_wrappers.py checks it), the frames are identical (the resize is the
+    same) with these differences:
+
+    - FIRE on reset lasts one frame here, one action (4 frames) there, so with `fire_reset`
+      the two games run a few frames apart from the first step on;
+    - the no-op starts draw from ALE's random stream, not Gymnasium's (same range, 0..noop_max);
+    - with `terminal_on_life_loss` the game goes on from the frame of the lost life, where
+      `EpisodicLifeEnv` first plays one no-op action.
+
+    Rewards, terminations, the final observations and the episodes' scores and lengths (in
+    frames, the no-ops and FIRE included) are the same.
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        *,
+        frame_stack: int = 4,
+        num_threads: int = 1,
+        noop_max: int = 30,
+        terminal_on_life_loss: bool = False,
+        fire_reset: bool = True,
+        clip_rewards: bool = True,
+    ) -> None:
+        from ale_py.vector_env import AtariVectorEnv
+
+        spec_kwargs = gym.spec(env_id).kwargs
+        native = AtariVectorEnv(
+            spec_kwargs["game"],
+            num_envs,
+            num_threads=num_threads,
+            repeat_action_probability=spec_kwargs.get("repeat_action_probability", 0.0),
+            full_action_space=spec_kwargs.get("full_action_space", False),
+            max_num_frames_per_episode=spec_kwargs.get("max_num_frames_per_episode", 108_000),
+            autoreset_mode=AutoresetMode.SAME_STEP,
+            stack_num=1,
+            frameskip=4,
+            noop_max=noop_max,
+            use_fire_reset=fire_reset,
+            life_loss_info=terminal_on_life_loss,
+            reward_clipping=False,
+        )
+        super().__init__(native)
+        self.single_observation_space = spaces.Box(0, 255, (frame_stack, 84, 84), dtype=np.uint8)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.metadata = {**native.metadata, "autoreset_mode": AutoresetMode.SAME_STEP}
+        self.clip_rewards = clip_rewards
+        self._stack = np.zeros((num_envs, frame_stack, 84, 84), dtype=np.uint8)
+        self._returns = np.zeros(num_envs, dtype=np.float64)
+        self._frames = np.zeros(num_envs, dtype=np.int64)
+        self._lives = np.zeros(num_envs, dtype=np.int64)
+        self._frame_number = np.zeros(num_envs, dtype=np.int64)
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        mask = np.ones(self.num_envs, dtype=bool)
+        if options is not None and "reset_mask" in options:
+            mask = np.asarray(options["reset_mask"], dtype=bool)
+        if isinstance(seed, list):
+            seed = None if all(s is None for s in seed) else np.asarray(seed)
+        elif seed is not None:
+            seed = np.arange(seed, seed + int(mask.sum()))  # env i gets seed + i, as Gymnasium's
+        if seed is not None:
+            seed = seed.astype(np.int64) % 2**31  # ALE takes a C int; Gymnasium's go to 2**32
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._stack[mask] = obs[mask]  # (n, 1, 84, 84) repeated along the stack
+        self._returns[mask] = 0.0
+        self._frames[mask] = info["episode_frame_number"][mask]
+        self._lives[mask] = info["lives"][mask]
+        self._frame_number[mask] = info["frame_number"][mask]
+        return self._stack, {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        actions = np.asarray(actions, dtype=np.int64)
+        obs, rewards, terminated, truncated, info = self.env.step(actions)
+        rewards = rewards.astype(np.float64)
+        self._stack[:, :-1] = self._stack[:, 1:]  # NumPy buffers the overlapping copy
+        self._stack[:, -1] = obs[:, 0]
+        self._returns += rewards
+        # frame_number is ALE's count over all episodes: its increase is this action's frames
+        # plus, for an env that was reset, the reset's no-ops and FIRE (its episode_frame_number)
+        step_frames = info["frame_number"] - self._frame_number
+        self._frame_number[:] = info["frame_number"]
+        self._frames += step_frames
+        if self.clip_rewards:
+            rewards = np.clip(rewards, -1.0, 1.0)
+        ended = terminated | truncated
+        if not ended.any():
+            self._lives[:] = info["lives"]
+            return self._stack, rewards, terminated, truncated, {}
+        # A lost life (terminal_on_life_loss) ends the learner's episode but not the game:
+        # the env was not reset, it shows fewer lives than before and some left.
+        life_lost = terminated & (info["lives"] < self._lives) & (info["lives"] > 0)
+        game_over = ended & ~life_lost
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for i in np.flatnonzero(ended):
+            final_obs[i] = self._stack[i].copy()
+            if game_over[i]:
+                final_obs[i][-1] = info["final_obs"][i, 0]
+        reset_frames = np.where(game_over, info["episode_frame_number"], 0)
+        episode = {"r": self._returns.copy(), "l": self._frames - reset_frames}
+        infos = {
+            "final_obs": final_obs,
+            "_final_obs": ended.copy(),
+            "final_info": {"episode": episode, "_episode": game_over.copy()},
+            "_final_info": ended.copy(),
+        }
+        self._stack[ended] = obs[ended]  # the next episode's first frame, repeated
+        self._returns[game_over] = 0.0
+        self._frames[game_over] = info["episode_frame_number"][game_over]
+        self._lives[:] = info["lives"]
+        return self._stack, rewards, terminated, truncated, infos
+
+
 def make_vector_env(
-    env_id: str, num_envs: int, *, frame_stack: int = 4, **kwargs: Any
+    env_id: str,
+    num_envs: int,
+    *,
+    frame_stack: int = 4,
+    backend: str = "native",
+    num_threads: int = 1,
+    **kwargs: Any,
 ) -> VectorEnv:
     """`num_envs` envs of `env_id` with `make_env`'s preprocessing behind one `VectorEnv`, with
     same-step autoreset: an ended episode's last observation and statistics are in
     `infos["final_obs"]` and `infos["final_info"]["episode"]` ("r": the raw score, "l"), each
     with its `_`-mask, and the returned observation is already the next episode's first.
+    Observations (num_envs, frame_stack, 84, 84) uint8, overwritten by the next step.
 
-    Catch: Catch's NumPy vector env (`gym.make_vec`) under `FrameStackVectorEnv`. Other ids:
-    a `SyncVectorEnv` of `make_env` envs (for ALE, the emulators step one after another in
-    this process). Observations (num_envs, frame_stack, 84, 84) uint8, overwritten by the next
-    step. Keyword arguments go to `make_env` (for Catch, to `gym.make_vec`).
+    Catch: Catch's NumPy vector env (`gym.make_vec`) under `FrameStackVectorEnv` (keyword
+    arguments go to `gym.make_vec`). ALE ids: with `backend="native"` (the default),
+    `AtariNativeVectorEnv`, ale-py's C++ vector env on `num_threads` emulator threads; with
+    `backend="python"`, a `SyncVectorEnv` of `make_env` envs, the emulators stepping one after
+    another in this process. Keyword arguments go to either (`noop_max`,
+    `terminal_on_life_loss`, `fire_reset`, `clip_rewards`).
     """
     if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-    if not is_atari(env_id) and gym.spec(env_id).vector_entry_point is not None:
+    if backend not in ("native", "python"):
+        raise ValueError(f"backend must be 'native' or 'python', got {backend!r}")
+    atari = is_atari(env_id)
+    if not atari and gym.spec(env_id).vector_entry_point is not None:
         env = gym.make_vec(env_id, num_envs=num_envs, copy=False, **kwargs)
         return FrameStackVectorEnv(env, frame_stack)
+    if atari and backend == "native":
+        return AtariNativeVectorEnv(
+            env_id, num_envs, frame_stack=frame_stack, num_threads=num_threads, **kwargs
+        )
     return SyncVectorEnv(
         [lambda: make_env(env_id, frame_stack=frame_stack, **kwargs) for _ in range(num_envs)],
         copy=False,
@@ -258,6 +403,7 @@ def observation_scale(env_id: str) -> float:
 
 
 __all__ = [
+    "AtariNativeVectorEnv",
     "EpisodicLifeEnv",
     "FireResetEnv",
     "FrameStackVectorEnv",

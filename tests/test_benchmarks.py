@@ -33,7 +33,7 @@ def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting():
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     rows = re.findall(
-        r"^(a3c_\w+) +(\d+) +(\w+) +(on|off) +([\d,]+) +[\d,]+ +\d+% ", result.stdout, re.M
+        r"^(a3c_\w+) +(\d+) +(\w+) +(on|off) +- +([\d,]+) +[\d,]+ +\d+% ", result.stdout, re.M
     )
     assert {row[:4] for row in rows} == {
         (name, k, "bf16", replay)
@@ -45,6 +45,25 @@ def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting():
     assert re.search(r"a3c_lstm: [\d.]+ MFLOP per env step", result.stdout)
 
 
+@pytest.mark.slow
+def test_a3c_throughput_compares_the_atari_backends_with_the_two_ceilings():
+    pytest.importorskip("ale_py")
+    result = run(
+        "benchmarks/a3c_throughput.py", "--env", "BreakoutNoFrameskip-v4", "--seconds", "2",
+        "--no-baseline", "--envs-per-worker", "2", "--precision", "bf16", "--eval-episodes", "1",
+        "--env-backend", "native", "python", "--env-threads", "1", "2", "--ceilings",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = re.findall(r"^a3c_ff +2 +bf16 +on +(\S+) +([\d,]+) ", result.stdout, re.M)
+    assert [row[0] for row in rows] == ["native/1", "native/2", "python"]
+    assert re.search(r"\('python', 1\)\): [\d.]+x", result.stdout)
+    match = re.search(r"emulator ([\d,]+) steps/s .* network ([\d,]+) .* = ([\d,]+) steps/s",
+                      result.stdout)  # fmt: skip
+    emulator, network, bound = (int(x.replace(",", "")) for x in match.groups())
+    assert abs(bound - 1 / (1 / emulator + 1 / network)) <= 2  # (printed rounded)
+    assert len(re.findall(r"% of that bound", result.stdout)) == 3
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -53,6 +72,8 @@ def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting():
         (["--seconds", "0"], "--seconds must be > 0"),
         (["--envs-per-worker", "0"], "--envs-per-worker must be >= 1"),
         (["--env", "NoSuchEnv-v0"], "unknown --env"),
+        (["--env-threads", "0"], "--env-threads must be >= 1"),
+        (["--ceilings"], "--ceilings needs an ALE game"),
     ],
 )
 def test_a3c_throughput_rejects_bad_input(args, message):

@@ -195,3 +195,127 @@ def test_catch_vector_env_reset_mask_resets_only_those_envs():
     np.testing.assert_array_equal(obs[[0, 2]], before[[0, 2]])  # untouched stacks
     assert all(np.array_equal(obs[1][0], frame) for frame in obs[1])  # a fresh, cleared stack
     assert not np.array_equal(obs[1], before[1])
+
+
+def step_both(native, python, actions):
+    """Step the native and the Python vector env with the same actions; assert the frames,
+    rewards, ends and ended episodes' final observations and statistics are equal."""
+    obs, rewards, terminated, truncated, info = native.step(actions)
+    ref_obs, ref_rewards, ref_terminated, ref_truncated, ref_info = python.step(actions)
+    largest = int(np.abs(obs.astype(np.int16) - ref_obs).max())
+    np.testing.assert_array_equal(rewards, ref_rewards)
+    np.testing.assert_array_equal(terminated, ref_terminated)
+    np.testing.assert_array_equal(truncated, ref_truncated)
+    ended = terminated | truncated
+    if ended.any():
+        np.testing.assert_array_equal(info["_final_obs"], ref_info["_final_obs"])
+        for i in np.flatnonzero(ended):
+            np.testing.assert_array_equal(info["final_obs"][i], ref_info["final_obs"][i])
+        episodes = info["final_info"]["_episode"]
+        np.testing.assert_array_equal(episodes, ref_info["final_info"]["_episode"])
+        for key in ("r", "l"):
+            np.testing.assert_array_equal(
+                info["final_info"]["episode"][key][episodes],
+                ref_info["final_info"]["episode"][key][episodes],
+            )
+    else:
+        assert info == {}  # (the Python path's also holds each env's lives and frame numbers)
+    return largest, int(ended.sum()), int(info["final_info"]["_episode"].sum()) if info else 0
+
+
+@pytest.mark.parametrize(
+    ("env_id", "steps"), [("BreakoutNoFrameskip-v4", 1200), ("PongNoFrameskip-v4", 3600)]
+)
+def test_native_atari_vector_env_matches_the_python_path_frame_for_frame(env_id, steps):
+    # Without the two random or differently timed parts (ALE's no-op draws, and FIRE on reset:
+    # one frame natively, one 4-frame action in FireResetEnv), the two paths give the same
+    # frames: the same emulator, the same max-pool and the same 84x84 resize.
+    pytest.importorskip("ale_py")
+    from catch_env.wrappers import AtariNativeVectorEnv, make_vector_env
+
+    options = {"noop_max": 0, "fire_reset": False}
+    native = make_vector_env(env_id, 3, **options)
+    python = make_vector_env(env_id, 3, backend="python", **options)
+    assert isinstance(native, AtariNativeVectorEnv)
+    assert native.single_observation_space == python.single_observation_space
+    assert native.single_action_space == python.single_action_space
+    obs, _ = native.reset(seed=5)
+    ref_obs, _ = python.reset(seed=5)
+    np.testing.assert_array_equal(obs, ref_obs)  # the first frame, repeated
+    rng = np.random.default_rng(0)
+    largest, games = 0, 0
+    for _ in range(steps):
+        step = step_both(native, python, rng.integers(0, native.single_action_space.n, 3))
+        largest, games = max(largest, step[0]), games + step[2]
+    assert largest == 0
+    assert games >= 2, "too few games ended to compare their final observations and scores"
+    native.close()
+    python.close()
+
+
+def test_native_atari_vector_env_differences_are_the_stated_ones():
+    pytest.importorskip("ale_py")
+    from catch_env.wrappers import make_vector_env
+
+    # FIRE on reset: one frame natively (ALE's episode frame number 1 after the reset), one
+    # action of 4 frames in FireResetEnv; the games then run apart.
+    native = make_vector_env("BreakoutNoFrameskip-v4", 1, noop_max=0)
+    _, info = native.env.reset(seed=0)  # the C++ env's own info
+    assert info["episode_frame_number"][0] == 1
+    python = make_env("BreakoutNoFrameskip-v4", noop_max=0)
+    python.reset(seed=0)
+    assert python.unwrapped.ale.getEpisodeFrameNumber() == 4
+    native.close()
+    # terminal_on_life_loss: the native game goes on from the frame of the lost life (no
+    # no-op action first); the stack is cleared and the game not reset.
+    native = make_vector_env(
+        "BreakoutNoFrameskip-v4", 1, noop_max=0, fire_reset=False, terminal_on_life_loss=True
+    )
+    obs, _ = native.reset(seed=0)
+    for _ in range(2000):
+        obs, _, terminated, _, info = native.step(np.array([1]))  # FIRE, then lose the ball
+        if terminated.any():
+            break
+    assert terminated[0] and not info["final_info"]["_episode"][0]  # a life, not the game
+    assert all(np.array_equal(obs[0][0], frame) for frame in obs[0])
+    np.testing.assert_array_equal(info["final_obs"][0][-1], obs[0][-1])
+    native.close()
+
+
+def test_native_atari_vector_env_keeps_the_raw_score_and_clips_rewards():
+    pytest.importorskip("ale_py")
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("PongNoFrameskip-v4", 2)
+    envs.reset(seed=0)
+    rewards, scores = [], []
+    for _ in range(5000):
+        _, reward, terminated, truncated, info = envs.step(np.zeros(2, dtype=np.int64))
+        rewards.append(reward)
+        if info:
+            scores += list(info["final_info"]["episode"]["r"][info["final_info"]["_episode"]])
+        if len(scores) >= 2:
+            break
+    assert set(np.unique(np.concatenate(rewards))) <= {-1.0, 0.0, 1.0}
+    assert scores and all(score == -21.0 for score in scores)  # NOOP loses 0:21
+
+
+def test_make_vector_env_rejects_a_bad_backend():
+    from catch_env.wrappers import make_vector_env
+
+    with pytest.raises(ValueError, match="backend must be 'native' or 'python'"):
+        make_vector_env("BreakoutNoFrameskip-v4", 2, backend="cpp")
+
+
+@pytest.mark.parametrize("seed", [0, 2**31 - 1, 2**32 - 1])
+def test_native_atari_vector_env_takes_any_gymnasium_seed(seed):
+    # the agents' process seeds fill 32 bits; ALE's seeds are C ints
+    pytest.importorskip("ale_py")
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("BreakoutNoFrameskip-v4", 2)
+    first, _ = envs.reset(seed=seed)
+    first = first.copy()
+    again, _ = envs.reset(seed=seed)
+    np.testing.assert_array_equal(first, again)
+    envs.close()
