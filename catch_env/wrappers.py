@@ -239,7 +239,7 @@ class AtariNativeVectorEnv(VectorWrapper):
 
     - FIRE on reset lasts one frame here, one action (4 frames) there, so with `fire_reset`
       the two games run a few frames apart from the first step on;
-    - the no-op starts draw from ALE's random stream, not Gymnasium's (same range, 0..noop_max);
+    - the no-op starts (up to noop_max) draw from ALE's random stream, not Gymnasium's;
     - with `terminal_on_life_loss` the game goes on from the frame of the lost life, where
       `EpisodicLifeEnv` first plays one no-op action.
 
