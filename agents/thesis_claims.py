@@ -94,9 +94,8 @@ def evidence(claim: dict) -> tuple[str, str, str]:
         return claim["ours"], "-", claim["verdict"]
     base, line = scores(claim["baseline"]), scores(claim["line"])
     paired = sorted(set(base) & set(line))
-    if len(paired) < 2:
-        todo = f"not run yet: `{claim['command']}`"
-        return todo, "-", "not run yet"
+    if len(paired) < 2:  # the command goes to the page's list of what is missing
+        return "not run yet (the command is in the last section)", "-", "not run yet"
     b = np.array([base[r] for r in paired])
     x = np.array([line[r] for r in paired])
     low, high = interval(x - b)
@@ -118,7 +117,7 @@ def link(folder: str) -> str:
 
 def render(claims: dict) -> str:
     """The whole page, in Markdown."""
-    out = [claims["intro"].strip(), ""]
+    out, missing = [claims["intro"].strip(), ""], {}
     for section in claims["section"]:
         out += [f"## {section['title']}", ""]
         if "text" in section:
@@ -129,6 +128,8 @@ def render(claims: dict) -> str:
         ]
         for claim in section["claim"]:
             ours, effect, call = evidence(claim)
+            if call == "not run yet" and "command" in claim:
+                missing.setdefault(claim["command"], []).append(claim["where"])
             head, _, rest = call.partition(":")
             verdict_cell = f"**{head}**" + (f": {rest.strip()}" if rest else "")
             cells = [claim["claim"], claim["where"], claim.get("form", "-"), claim["thesis"],
@@ -136,6 +137,8 @@ def render(claims: dict) -> str:
             out.append("| " + " | ".join(" ".join(cell.split()) for cell in cells) + " |")
         out.append("")
     out.append(claims["outro"].strip())
+    out += [""] + [f"- {', '.join(dict.fromkeys(wheres))}: `{command}`"
+                   for command, wheres in missing.items()]  # fmt: skip
     return "\n".join(out) + "\n"
 
 

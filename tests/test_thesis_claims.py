@@ -98,4 +98,8 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
     assert "n = 3 paired runs" in ours and effect.startswith("+0.200")  # run-0003 has no pair
     assert verdict == "reproduced"  # the same +0.2 in every pair
     ours, effect, verdict = claims.evidence({**claim, "line": "missing"})
-    assert verdict == "not run yet" and "`make b`" in ours and effect == "-"
+    assert verdict == "not run yet" and ours.startswith("not run yet") and effect == "-"
+    data = {"intro": "# Claims", "outro": "## Missing", "section": [
+        {"title": "S", "claim": [{**claim, "line": "missing", "claim": "c", "where": "Fig 1",
+                                  "form": "as run", "thesis": "t"}]}]}  # fmt: skip
+    assert "- Fig 1: `make b`" in claims.render(data)  # the command, in the list of what is missing
