@@ -33,7 +33,9 @@ its run i. The thesis ran 50-100 learning rates in [1e-6, 1e-2] per line, 1M ste
 Resuming. sweep.py resumes: the same command again skips the runs already in each line's
 results.csv, and a larger --runs extends them. --round K runs the lines in rounds of K more runs
 each (as reproduce.sh does), so that a stopped figure has covered its lines evenly. A line that
-appears in several figures (A3C FF) is run once per figure, in that figure's folder.
+appears in several figures with the same configuration (A3C FF as run, the baseline of most) names
+the first with `same_as`: its runs are that line's, run once, in that line's folder, and every
+figure that shows it plots them (a test checks that both lines' flags parse to the same Args).
 
 Exit codes: 0 when done, 1 when some line's every run failed, 2 for bad arguments (nothing is
 created), a malformed thesis_figures.toml or a sweep folder holding another configuration, 130
@@ -79,6 +81,7 @@ class Line:
     source: str  # the preset and the as-run doc's evidence; (I) marks an inference
     samples: tuple[str, ...] = ()  # sampled jointly with the learning rate: NAME=DIST
     approximation: str = ""  # why these flags are only the nearest to what ran, if they are
+    same_as: str = ""  # FIG/SLUG of a line with the same configuration, whose runs this one shows
 
     @property
     def argv(self) -> list[str]:
@@ -131,7 +134,7 @@ KEYS = {
     "figure": {"id": str, "caption": str, "thesis": str, "note?": str, "numbers?": dict,
                "line": list, "plot?": list},
     "line": {"slug": str, "label": str, "script": str, "flags": str, "source": str,
-             "samples?": list, "approximation?": str},
+             "samples?": list, "approximation?": str, "same_as?": str},
     "plot": {"x": str, "bar_range?": list},
 }  # fmt: skip
 TYPES = {str: "a string", list: "a list", dict: "a table"}
@@ -225,7 +228,33 @@ def load_figures(path: Path = DATA) -> tuple[Figure, ...]:
     for id in ids:
         if ids.count(id) > 1:
             raise DataError(f"{file}: two figures with id {id!r}")
+    lines = {f"{figure.id}/{line.slug}": line for figure in figures for line in figure.lines}
+    for figure in figures:
+        for line in figure.lines:
+            if not line.same_as:
+                continue
+            where = f"{file}: figure {figure.id}, line {line.label!r}: same_as {line.same_as!r}"
+            target = lines.get(line.same_as)
+            if target is None:
+                raise DataError(f"{where} is no FIG/SLUG of this file")
+            if target.same_as:
+                raise DataError(f"{where} is itself same_as {target.same_as!r}; name that line")
+            if (target.script, target.samples) != (line.script, line.samples):
+                raise DataError(f"{where} runs another script or samples other flags")
     return tuple(figures)
+
+
+def folder(figure: Figure, line: Line) -> str:
+    """FIG/SLUG of the folder that holds a line's runs: its own, or its same_as line's."""
+    return line.same_as or f"{figure.id}/{line.slug}"
+
+
+def run_as(figure: Figure, line: Line) -> tuple[Figure, Line]:
+    """The figure and line whose sweep a line's runs are: itself, or its same_as line."""
+    if not line.same_as:
+        return figure, line
+    fig, slug = line.same_as.split("/")
+    return BY_ID[fig], next(other for other in BY_ID[fig].lines if other.slug == slug)
 
 
 try:
@@ -296,8 +325,8 @@ def eval_interval(steps: int) -> int:
 
 def plot_commands(figure: Figure, options: argparse.Namespace) -> list[tuple[list[str], Path]]:
     """plot_sweep.py's commands (without the interpreter) and the PNG each writes."""
-    folder = Path(options.out) / figure.id
-    tables = [str(folder / line.slug / "results.csv") for line in figure.lines]
+    out = Path(options.out)
+    tables = [str(out / folder(figure, line) / "results.csv") for line in figure.lines]
     low, high = options.lr_range
     workers = options.num_workers or 1
     title = (
@@ -307,7 +336,7 @@ def plot_commands(figure: Figure, options: argparse.Namespace) -> list[tuple[lis
     )
     commands = []
     for plot in figure.plots:
-        png = folder / f"{figure.id}{plot.suffix}.png"
+        png = out / figure.id / f"{figure.id}{plot.suffix}.png"
         command = [display(PLOT), *tables, "--labels", *(line.label for line in figure.lines)]
         command += ["--out", str(png), "--title", title]
         if plot.x != "learning-rate":
@@ -343,10 +372,16 @@ def run_figures(figures: list[Figure], options: argparse.Namespace) -> int:
     step = options.round or options.runs
     failed = []
     for target in [*range(step, options.runs, step), options.runs]:
+        swept: set[str] = set()  # the folders swept this round: a shared line's runs go once
         for figure in figures:
             for line in figure.lines:
-                print(f"== {figure.id} {line.label}: {plural(target, 'run')}", flush=True)
-                code, _ = execute(sweep_command(figure, line, options, target))
+                where = folder(figure, line)
+                shared = f" (the runs of {where})" if line.same_as else ""
+                print(f"== {figure.id} {line.label}{shared}: {plural(target, 'run')}", flush=True)
+                if where in swept:
+                    continue
+                swept.add(where)
+                code, _ = execute(sweep_command(*run_as(figure, line), options, target))
                 if code in (2, 130):  # a folder with another sweep, or interrupted: stop here
                     return code
                 if code == 1 and target == options.runs:
@@ -361,9 +396,11 @@ def run_figures(figures: list[Figure], options: argparse.Namespace) -> int:
 
 def draw(figure: Figure, options: argparse.Namespace) -> None:
     """Plot a figure's lines and write OUT/FIG/FIG.md: the tables, the thesis, the notes."""
-    folder = Path(options.out) / figure.id
+    out = Path(options.out)
     missing = [
-        line.label for line in figure.lines if not (folder / line.slug / "results.csv").exists()
+        line.label
+        for line in figure.lines
+        if not (out / folder(figure, line) / "results.csv").exists()
     ]
     if missing:
         print(f"{figure.id}: no results for {', '.join(missing)}; not plotted", file=sys.stderr)
@@ -384,12 +421,16 @@ def draw(figure: Figure, options: argparse.Namespace) -> None:
         f"Thesis: {figure.thesis}",
         "",
         "Lines:",
-        *(f"- {line.label}: `{line.script} {line.flags}` ({line.source})" for line in figure.lines),
+        *(
+            f"- {line.label}: `{line.script} {line.flags}` ({line.source})"
+            + (f"; its runs are {line.same_as}'s, the same configuration" if line.same_as else "")
+            for line in figure.lines
+        ),
         *approximations(figure),
     ]
     if figure.note:
         summary += ["", f"Note: {figure.note}"]
-    (folder / f"{figure.id}.md").write_text("\n".join(summary) + "\n")
+    (out / figure.id / f"{figure.id}.md").write_text("\n".join(summary) + "\n")
 
 
 def approximations(figure: Figure) -> list[str]:
@@ -411,6 +452,8 @@ def list_figures(figures: list[Figure]) -> str:
             samples = "".join(f" --sample {sample}" for sample in line.samples)
             out.append(f"  - {line.label} [{line.slug}]: {line.script} {line.flags}{samples}")
             out.append(f"      as run: {line.source}")
+            if line.same_as:
+                out.append(f"      runs: {line.same_as}'s (the same configuration, run once)")
             if line.approximation:
                 out.append(f"      NOT EXACT: {line.approximation}")
         out.append("")
@@ -536,7 +579,8 @@ def main(argv: list[str] | None = None) -> int:
         for figure in figures:
             print(f"# {figure.id}: {figure.caption}")
             for line in figure.lines:
-                print(shlex.join(["python", *sweep_command(figure, line, options, options.runs)]))
+                command = sweep_command(*run_as(figure, line), options, options.runs)
+                print(shlex.join(["python", *command]))
             for command, _ in plot_commands(figure, options):
                 print(shlex.join(["python", *command]))
         return 0

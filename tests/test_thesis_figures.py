@@ -200,6 +200,10 @@ def test_the_loader_reads_a_data_file(tmp_path):
         ('source = "preset 4"\n', 'source = "preset 4"\n\n[[figure.plot]]\nx = "tau"\n',
          "figure fig6.7, plot 1: x is 'tau', which not every line samples"),
         ("[flags]", "[flags", "Expected ']'"),
+        ('source = "preset 13"', 'source = "preset 13"\nsame_as = "fig6.7/elx"',
+         "line 'ReLU': same_as 'fig6.7/elx' is no FIG/SLUG of this file"),
+        ('source = "preset 13"', 'source = "preset 13"\nsame_as = "fig6.7/elu"',
+         "line 'ReLU': same_as 'fig6.7/elu' runs another script or samples other flags"),
     ],
 )  # fmt: skip
 def test_the_loader_refuses_a_malformed_data_file(tmp_path, old, new, message):
@@ -207,6 +211,41 @@ def test_the_loader_refuses_a_malformed_data_file(tmp_path, old, new, message):
     with pytest.raises(figures.DataError, match=re.escape(message)) as error:
         figures.load_figures(path)
     assert str(error.value).startswith(f"{figures.display(path)}: ")
+
+
+def test_the_loader_refuses_a_chain_of_same_as(tmp_path):
+    path = write_data(
+        tmp_path, 'source = "preset 13"', 'source = "preset 13"\nsame_as = "fig6.7/elu"'
+    )
+    path.write_text(
+        path.read_text().replace(
+            'source = "preset 4"', 'source = "preset 4"\nsame_as = "fig6.7/relu"'
+        )
+    )
+    with pytest.raises(figures.DataError, match="is itself same_as 'fig6.7/"):
+        figures.load_figures(path)
+
+
+SHARED = [(figure, line) for figure, line in LINES if line.same_as]
+
+
+@pytest.mark.parametrize(
+    ("figure", "line"), SHARED, ids=[f"{figure.id}-{line.slug}" for figure, line in SHARED]
+)
+def test_a_shared_line_has_the_configuration_of_the_line_it_names(figure, line):
+    """A line that shows another figure's runs (same_as) parses, in its script, to the same Args
+    as that line: the two are one configuration, so running it once is enough."""
+    import tyro
+
+    other_figure, other = figures.run_as(figure, line)
+    assert other is not line and f"{other_figure.id}/{other.slug}" == line.same_as
+    module = agent(line.script)
+    common = ["--learning-rate", "1e-3", "--total-timesteps", "1000", "--seed", "3"]
+    parsed = [
+        module.resolve_defaults(tyro.cli(module.Args, args=[*each.argv, *common]))
+        for each in (line, other)
+    ]
+    assert parsed[0] == parsed[1]
 
 
 def test_a_malformed_data_file_stops_the_command_with_one_line(tmp_path):
@@ -262,11 +301,11 @@ def test_dry_run_prints_the_sweeps_and_creates_nothing(tmp_path):
         assert command[1:3] == ["agents/sweep.py", f"agents/{line.script}"]
         split = command.index("--")
         own, fixed = command[3:split], command[split + 1 :]
-        assert own[own.index("--out") + 1] == str(out / "fig7.6" / line.slug)
+        assert own[own.index("--out") + 1] == str(out / figures.folder(figure, line))
         assert own[own.index("--runs") + 1] == "2"
         assert own[own.index("--total-timesteps") + 1] == "1000"
         assert own[own.index("--sample") + 1] == "learning-rate=loguniform:1e-05:0.01"
-        assert fixed == [*line.argv, "--eval-interval", "50"]
+        assert fixed == [*figures.run_as(figure, line)[1].argv, "--eval-interval", "50"]
         # and sweep.py accepts the command (its own dry run creates nothing either)
         assert sweep.main([command[2], "--dry-run", *command[3:]]) == 0
     assert not out.exists()
@@ -346,7 +385,12 @@ def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch)
     out = tmp_path / "out"
     argv = ["fig7.6", "--runs", "3", "--steps", "1000", "--round", "2", "--out", str(out)]
     assert figures.main(argv) == 0
-    slugs = [line.slug for line in figures.BY_ID["fig7.6"].lines]
+    # A3C FF's runs are fig6.7's ReLU line's (same_as), swept in that line's folder
+    slugs = [
+        Path(figures.folder(figures.BY_ID["fig7.6"], line)).name
+        for line in figures.BY_ID["fig7.6"].lines
+    ]
+    assert slugs[0] == "relu" and (out / "fig6.7" / "relu" / "results.csv").exists()
     assert calls == [(slug, 2) for slug in slugs] + [(slug, 3) for slug in slugs]
     png = out / "fig7.6" / "fig7.6.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -354,6 +398,34 @@ def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch)
     assert "| GLPQ searing | 3/3 |" in summary and "| 0.81 |" in summary
     assert "A3C FF 0.73" in summary  # the thesis's statement
     assert "--round 2" in summary  # the command that made it
+
+
+def test_a_shared_line_is_swept_once_per_round(tmp_path, monkeypatch):
+    """Figures 6.6 and 6.8 both show fig6.7's ReLU runs: one sweep of them per round, and both
+    figures plot them under their own labels."""
+    real_execute = figures.execute
+    calls = []
+
+    def execute(command, capture=False):
+        if Path(command[0]).name == "plot_sweep.py":
+            return real_execute(command, capture)
+        own = command[: command.index("--")]
+        out = Path(own[own.index("--out") + 1])
+        calls.append(f"{out.parent.name}/{out.name}")
+        samples = [own[i + 1] for i, word in enumerate(own) if word == "--sample"]
+        fake_table(out, int(own[own.index("--runs") + 1]), samples)
+        return 0, ""
+
+    monkeypatch.setattr(figures, "execute", execute)
+    out = tmp_path / "out"
+    argv = ["fig6.6", "fig6.8", "--runs", "2", "--steps", "1000", "--out", str(out)]
+    assert figures.main(argv) == 0
+    assert calls == ["fig6.7/relu", "fig6.6/global-norm", "fig6.8/he", "fig6.8/sussillo-abbott"]
+    assert not (out / "fig6.6" / "clip-by-value").exists()
+    for figure, label in (("fig6.6", "Clip by value"), ("fig6.8", "Glorot & Bengio")):
+        summary = (out / figure / f"{figure}.md").read_text()
+        assert f"| {label} | 2/2 |" in summary
+        assert "its runs are fig6.7/relu's, the same configuration" in summary
 
 
 def test_an_interrupted_sweep_stops_the_figure(tmp_path, monkeypatch):
