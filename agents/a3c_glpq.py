@@ -117,11 +117,19 @@ class Args:
     and would turn mu = (d_- - d) / (d_- + d) upside down"""
     competition_size: Annotated[int | None, default_text("all")] = None
     """k: only the k nearest prototypes of each action compete (eq. 7.11)"""
-    prototype_init: Literal["uniform", "uniform-clipped"] = "uniform"
+    prototype_init: Literal["uniform", "uniform-clipped", "data"] = "uniform"
     """prototypes U(-b, b); uniform-clipped: then negatives set to 0, as the ReLU features are
-    (our reading of the thesis's unexplained 'zero clipping', figure C.1)"""
+    (our reading of the thesis's unexplained 'zero clipping', figure C.1); data (thesis chapter
+    8's future work): each prototype on a distinct feature vector h of the initial network, from
+    the states of a short random-policy rollout, so that distances start at the features' scale"""
     prototype_init_bound: float = 1 / 16
     """the bound b of the prototype initialisation"""
+    value_head: Literal["linear", "prototypes"] = "linear"
+    """V(s): linear in h (the thesis's); prototypes (chapter 8's future work): learning vector
+    regression, V = sum_j softmax_j(-beta d(h, u_j)) v_j over --value-prototypes prototypes u_j
+    with values v_j and a trainable kernel width beta, trained by the value loss"""
+    value_prototypes: int = 16
+    """the value prototypes u_j of --value-head prototypes"""
     mu_form: Literal["text", "code"] = "text"
     """text: each prototype's logit is tau * mu_i, mu_i = (d_- - d_i) / (d_- + d_i) (eq. 7.7 as
     written, bounded by Theorem 1); code: tau * (d_- / (d_i + d_-) - d_i), what the thesis's runs
@@ -197,7 +205,8 @@ def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
 # ----------------------------------------------------------------------------------------------
 # args a checkpoint's network depends on
 NETWORK_ARGS = ("env", "activation", "scale_obs", "prototypes_per_action", "distance",
-                "competition_size", "mu_form", "temperature", "tau_parametrization")  # fmt: skip
+                "competition_size", "value_head", "value_prototypes", "mu_form", "temperature",
+                "tau_parametrization")  # fmt: skip
 NORM_EPS = 1e-8  # below this norm a vector counts as zero (cosine and Pearson distances)
 SQRT_EPS = 1e-12  # the Euclidean distance is sqrt(max(squared, SQRT_EPS)): no infinite gradient
 MU_EPS = 1e-12  # in mu's denominator: finite where d_- = d = 0
@@ -305,6 +314,17 @@ def scheduled_tau(p: float, n: int) -> float:
     return 0.5 * math.log(p * (n - 1) / (1 - p))
 
 
+def prototype_regression(
+    distances: torch.Tensor, beta: torch.Tensor | float, values: torch.Tensor
+) -> torch.Tensor:
+    """Learning vector regression (chapter 8's prototype value head): V = sum_j g_j v_j with
+    g = softmax(-beta d) over the M value prototypes, for distances (B, M) and values (M,) ->
+    (B,). The soft assignment of Regression LVQ (Grbovic and Vucetic 2009), i.e. a normalized
+    RBF network (Moody and Darken 1989) with Gaussian kernels exp(-beta |h - u_j|^2) when d is
+    the squared Euclidean distance."""
+    return torch.softmax(-beta * distances, dim=-1) @ values
+
+
 class ActorCritic(nn.Module):
     """A3C GLPQ (thesis 7.1.2, 7.2): the A3C FF torso and value head; the policy is a softmax of
     tau mu over P prototypes per action in the 256-d feature space, summed per action
@@ -323,7 +343,8 @@ class ActorCritic(nn.Module):
             nn.Linear(64 * 9 * 9, 256),
             activation(inplace=True),
         )
-        self.value = nn.Linear(256, 1)
+        if args.value_head == "linear":
+            self.value = nn.Linear(256, 1)
         self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
         init_parameters(self, args.weight_init, args.bias_init)
         per_action = args.prototypes_per_action
@@ -346,6 +367,15 @@ class ActorCritic(nn.Module):
             self.prototypes.uniform_(-bound, bound)
             if args.prototype_init == "uniform-clipped":
                 self.prototypes.clamp_(min=0.0)
+        self.value_head = args.value_head
+        if args.value_head == "prototypes":
+            if args.value_prototypes < 1:
+                raise UsageError(f"--value-prototypes must be >= 1 (got {args.value_prototypes})")
+            self.value_prototypes = nn.Parameter(torch.empty(args.value_prototypes, 256))
+            with torch.no_grad():
+                self.value_prototypes.uniform_(-bound, bound)
+            self.prototype_values = nn.Parameter(torch.zeros(args.value_prototypes))
+            self.log_value_beta = nn.Parameter(torch.zeros(()))  # beta = 1
         self.mu_form, self.temperature_mode = args.mu_form, args.temperature
         self.loss_correction, self.progress = args.tau_loss_correction, 0.0
         tau = args.tau
@@ -377,12 +407,40 @@ class ActorCritic(nn.Module):
                     )
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        hidden = self.features(obs)
+        return self.log_policy(hidden), self.state_value(hidden)
+
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """h (B, 256) of the frames (B, 4, 84, 84)."""
         # channels_last makes oneDNN's convolution backward about 2x faster on CPU
         x = obs.to(dtype=torch.float32, memory_format=torch.channels_last)
         if self.obs_scale != 1.0:
             x = x * self.obs_scale
-        hidden = self.torso(x)
-        return self.log_policy(hidden), self.value(hidden).squeeze(-1)
+        return self.torso(x)
+
+    def state_value(self, hidden: torch.Tensor) -> torch.Tensor:
+        """V (B,) from the features h (B, 256): linear, or by learning vector regression."""
+        if self.value_head == "linear":
+            return self.value(hidden).squeeze(-1)
+        distances = prototype_distances(hidden, self.value_prototypes, self.distance)
+        return prototype_regression(distances, self.log_value_beta.exp(), self.prototype_values)
+
+    @torch.no_grad()
+    def place_prototypes(self, hidden: torch.Tensor, rng: np.random.Generator) -> None:
+        """--prototype-init data: each prototype (and value prototype) on a feature vector of
+        hidden (N, 256), distinct ones while there are enough; the value kernel's beta at 1 over
+        the mean distance from the features to the value prototypes, so that V starts smooth."""
+        for prototypes in (self.prototypes, getattr(self, "value_prototypes", None)):
+            if prototypes is not None:
+                rows = rng.choice(
+                    len(hidden), len(prototypes), replace=len(prototypes) > len(hidden)
+                )
+                prototypes.copy_(hidden[torch.from_numpy(rows)])
+        if self.value_head == "prototypes":
+            distances = prototype_distances(hidden, self.value_prototypes, self.distance)
+            scale = distances.abs().mean().item()
+            if scale > NORM_EPS:
+                self.log_value_beta.fill_(-math.log(scale))
 
     def log_policy(self, hidden: torch.Tensor) -> torch.Tensor:
         """log pi (B, A) from the features h (B, 256)."""
@@ -580,6 +638,34 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
     envs.close()
 
 
+DATA_INIT_ENVS, DATA_INIT_STEPS = 16, 32  # --prototype-init data: 512 states of random play
+
+
+def initialize_network(model: ActorCritic, args: Args) -> None:
+    """A new run's global network, before the workers start: with --prototype-init data, its
+    prototypes placed on the features it gives the states of DATA_INIT_STEPS steps of
+    DATA_INIT_ENVS envs under a uniformly random policy (the near-uniform policy an untrained
+    prototype head plays), seeded by --seed."""
+    if args.prototype_init != "data":
+        return
+    rng = np.random.default_rng(args.seed)
+    frames = random_play_frames(args.env, rng, args.seed)
+    with torch.no_grad():
+        model.place_prototypes(model.features(torch.from_numpy(frames)), rng)
+
+
+def random_play_frames(env_id: str, rng: np.random.Generator, seed: int) -> np.ndarray:
+    """The frames (DATA_INIT_STEPS * DATA_INIT_ENVS, 4, 84, 84) of a uniformly random policy."""
+    envs = make_vector_env(env_id, DATA_INIT_ENVS)
+    obs, _ = envs.reset(seed=seed)
+    frames = [obs]
+    for _ in range(DATA_INIT_STEPS - 1):
+        obs, *_ = envs.step(rng.integers(envs.single_action_space.n, size=envs.num_envs))
+        frames.append(obs)
+    envs.close()
+    return np.concatenate(frames)
+
+
 AGENT = Agent(
     script=os.path.basename(__file__),
     Args=Args,
@@ -587,6 +673,7 @@ AGENT = Agent(
     network=ActorCritic,
     network_args=NETWORK_ARGS,
     worker=worker,
+    initialize=initialize_network,
 )
 
 

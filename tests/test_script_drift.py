@@ -17,8 +17,9 @@ ALLOWED = {
     "a3c_ss": NETWORK | {"AGENT"},
     "a3c_ww": NETWORK | {"AGENT"},
     "a3c_lstm": NETWORK | {"worker"},  # the recurrent state through the rollout
-    "a3c_lpq": NETWORK,
-    "a3c_glpq": NETWORK | {"worker"},  # the tau schedule's progress and the 1/tau loss
+    # AGENT: initialize, for --prototype-init data
+    "a3c_lpq": NETWORK | {"AGENT"},
+    "a3c_glpq": NETWORK | {"AGENT", "worker"},  # the tau schedule's progress and the 1/tau loss
 }
 
 

@@ -84,7 +84,9 @@ class Agent:
       `shared.worker_stats(worker_id)`;
     - `checkpoint_defaults`: flags newer than some checkpoints, with the value those
       checkpoints' runs had where it is not the flag's default (e.g. SS's --conv-layout: final
-      before it existed).
+      before it existed);
+    - `initialize(network, args)` (optional): sets a new run's global network from data before
+      the workers start (LPQ's --prototype-init data); not called when resuming.
     """
 
     script: str
@@ -94,6 +96,7 @@ class Agent:
     network_args: tuple[str, ...]
     worker: Callable[..., None]
     checkpoint_defaults: dict[str, Any] = field(default_factory=dict)
+    initialize: Callable[[nn.Module, Any], None] | None = None
 
     def trained_args(self, checkpoint: dict) -> dict[str, Any]:
         """The flags a checkpoint was trained with; a flag it predates has its

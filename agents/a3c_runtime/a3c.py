@@ -48,7 +48,10 @@ def train(
     seed_everything(args.seed)
     num_actions = probe_env(agent.make_env, args.env)
     # the network is built before the run folder: its constructor rejects bad flags
-    shared = Shared(agent.build_network(num_actions, args), args, FORK)
+    network = agent.build_network(num_actions, args)
+    if checkpoint is None and agent.initialize is not None:
+        agent.initialize(network, args)
+    shared = Shared(network, args, FORK)
     if checkpoint is not None:
         restore(shared, checkpoint, args, args.resume, agent)
     start_step = shared.global_step()

@@ -1,0 +1,161 @@
+"""Tests of the thesis's future work (chapter 8) built into the prototype scripts: the prototype
+value head (learning vector regression) and the prototype initialisation from the data, in
+agents/a3c_lpq.py and agents/a3c_glpq.py, against hand-computed values, then end to end."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from conftest import evaluation_steps, load_script, run_script
+
+TINY = ["--num-workers", "2", "--eval-episodes", "2", "--log-interval", "1"]
+
+
+@pytest.fixture(scope="module", params=["a3c_lpq", "a3c_glpq"])
+def script(request):
+    return load_script(request.param)
+
+
+def network(script, **flags):
+    import catch_env  # noqa: F401  (registers Catch-v0)
+
+    args = script.resolve_defaults(script.Args(**flags))
+    return script.ActorCritic(3, args), args
+
+
+# ---------------------------------------------------------------------------------------------
+# The prototype value head: V = sum_j softmax_j(-beta d_j) v_j
+# ---------------------------------------------------------------------------------------------
+def test_prototype_regression_by_hand(script):
+    distances = torch.tensor([[0.0, 1.0], [2.0, 2.0]])
+    values = torch.tensor([1.0, 3.0])
+    # row 1: weights e^0 : e^-1 = 0.7311 : 0.2689; row 2: equal weights
+    expected = [(1 + 3 * math.exp(-1)) / (1 + math.exp(-1)), 2.0]
+    torch.testing.assert_close(script.prototype_regression(distances, 1.0, values),
+                               torch.tensor(expected))  # fmt: skip
+    # beta = 0.5 halves the distances: weights e^0 : e^-0.5
+    half = (1 + 3 * math.exp(-0.5)) / (1 + math.exp(-0.5))
+    assert script.prototype_regression(distances, 0.5, values)[0].item() == pytest.approx(half)
+
+
+def test_the_value_head_on_the_network_by_hand(script):
+    """Two value prototypes in the 256-d feature space, h on the first: V by hand."""
+    model, _ = network(script, value_head="prototypes", value_prototypes=2)
+    h = torch.zeros(1, 256)
+    with torch.no_grad():
+        model.value_prototypes.zero_()
+        model.value_prototypes[1, 0] = 1.0  # |h - u_2|^2 = 1
+        model.prototype_values.copy_(torch.tensor([-1.0, 2.0]))
+        model.log_value_beta.fill_(math.log(2.0))  # weights e^0 : e^-2
+    expected = (-1 + 2 * math.exp(-2)) / (1 + math.exp(-2))
+    assert model.state_value(h).item() == pytest.approx(expected, rel=1e-6)
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e3, 1e5])  # Catch's unscaled features reach 1e3-1e5
+def test_the_value_head_has_finite_gradients_and_only_the_value_loss_trains_it(script, scale):
+    model, _ = network(script, value_head="prototypes")
+    hidden = (torch.rand(5, 256) * scale).requires_grad_()
+    log_probs = model.log_policy(hidden)
+    values = model.state_value(hidden)
+    assert torch.isfinite(values).all()
+    value_params = [model.value_prototypes, model.prototype_values, model.log_value_beta]
+    value_grads = torch.autograd.grad(values.square().sum(), [*value_params, model.prototypes],
+                                      allow_unused=True)  # fmt: skip
+    assert all(torch.isfinite(g).all() for g in value_grads[:-1])
+    assert value_grads[-1] is None  # the policy prototypes: no gradient from the value loss
+    policy_grads = torch.autograd.grad(log_probs[:, 0].sum(), value_params, allow_unused=True)
+    assert all(g is None for g in policy_grads)  # and the value head none from the policy
+
+
+def test_the_linear_value_head_is_the_default_and_unchanged(script):
+    model, args = network(script)
+    assert args.value_head == "linear" and isinstance(model.value, torch.nn.Linear)
+    assert not hasattr(model, "value_prototypes")
+    hidden = torch.rand(4, 256)
+    torch.testing.assert_close(model.state_value(hidden), model.value(hidden).squeeze(-1))
+
+
+def test_bad_value_prototypes_is_a_usage_error(script):
+    with pytest.raises(script.UsageError, match="--value-prototypes must be >= 1"):
+        network(script, value_head="prototypes", value_prototypes=0)
+
+
+def test_a_value_prototype_learns_the_value_of_its_states(script):
+    """Gradient descent on 0.5 (G - V)^2 moves each v_j toward the returns of the states it
+    covers: two separated clusters of features with returns 1 and -1."""
+    model, _ = network(script, value_head="prototypes", value_prototypes=2)
+    with torch.no_grad():
+        model.value_prototypes.zero_()
+        model.value_prototypes[1, :] = 1.0
+    hidden = torch.cat([torch.zeros(8, 256), torch.ones(8, 256)])
+    returns = torch.cat([torch.ones(8), -torch.ones(8)])
+    optimizer = torch.optim.SGD([model.prototype_values], lr=0.05)
+    for _ in range(200):
+        optimizer.zero_grad()
+        (0.5 * (returns - model.state_value(hidden)).square().sum()).backward()
+        optimizer.step()
+    torch.testing.assert_close(model.prototype_values.detach(), torch.tensor([1.0, -1.0]),
+                               atol=1e-3, rtol=0)  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# --prototype-init data
+# ---------------------------------------------------------------------------------------------
+def test_place_prototypes_puts_each_prototype_on_a_distinct_feature(script):
+    model, _ = network(script, value_head="prototypes", value_prototypes=4)
+    hidden = torch.arange(100 * 256, dtype=torch.float32).view(100, 256) / 1000
+    model.place_prototypes(hidden, np.random.default_rng(0))
+    for prototypes in (model.prototypes, model.value_prototypes):
+        rows = [int(torch.where((hidden == p).all(1))[0][0]) for p in prototypes.detach()]
+        assert len(set(rows)) == len(rows)  # distinct rows: 100 features for 48 prototypes
+    distances = script.prototype_distances(hidden, model.value_prototypes, "squared-euclidean")
+    beta = model.log_value_beta.exp().item()
+    assert beta == pytest.approx(1 / distances.mean().item(), rel=1e-5)
+
+
+def test_data_initialisation_on_catch_places_prototypes_at_the_features_scale(script):
+    """On Catch's unscaled frames the features are far from U(-1/16, 1/16) prototypes: the
+    uniform init puts every prototype at about |h|^2 from h, the data init at 0 from some h."""
+    torch.manual_seed(3)  # as train's seed_everything before it builds the network
+    model, args = network(script, prototype_init="data", value_head="prototypes", seed=3)
+    uniform = model.prototypes.detach().clone()
+    script.initialize_network(model, args)
+    frames = script.random_play_frames("Catch-v0", np.random.default_rng(3), 3)
+    assert frames.shape == (script.DATA_INIT_STEPS * script.DATA_INIT_ENVS, 4, 84, 84)
+    with torch.no_grad():
+        hidden = model.features(torch.from_numpy(frames))
+        nearest_uniform = script.prototype_distances(hidden, uniform, "squared-euclidean")
+        placed = script.prototype_distances(hidden, model.prototypes, "squared-euclidean")
+    # every prototype sits on a feature of the random play's states
+    assert placed.amin(0).max().item() == pytest.approx(0.0, abs=1e-2)
+    assert nearest_uniform.amin(0).min().item() > 100
+    torch.manual_seed(3)
+    again, _ = network(script, prototype_init="data", value_head="prototypes", seed=3)
+    script.initialize_network(again, args)
+    torch.testing.assert_close(again.prototypes, model.prototypes)  # seeded
+
+
+def test_the_uniform_default_is_left_alone(script):
+    model, args = network(script)
+    before = model.prototypes.detach().clone()
+    script.initialize_network(model, args)
+    torch.testing.assert_close(model.prototypes.detach(), before)
+
+
+# ---------------------------------------------------------------------------------------------
+# End to end, tiny budgets
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["a3c_lpq", "a3c_glpq"])
+def test_value_head_and_data_init_end_to_end(tmp_path, name):
+    flags = ["--value-head", "prototypes", "--prototype-init", "data"]
+    budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
+    result = run_script(name, *TINY, *budget, *flags, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert evaluation_steps(tmp_path)[-1] >= 2000
+    # the value head is part of the network: a checkpoint resumes only with it
+    result = run_script(name, "--resume", str(tmp_path / "checkpoint.pt"), "--value-head",
+                        "linear", timeout=60)  # fmt: skip
+    assert result.returncode == 2
+    assert "--value-head linear differs from the run's prototypes" in result.stderr
