@@ -1,6 +1,7 @@
-"""Tests of the thesis's future work (chapter 8) built into the prototype scripts: the prototype
-value head (learning vector regression) and the prototype initialisation from the data, in
-agents/a3c_lpq.py and agents/a3c_glpq.py, against hand-computed values, then end to end."""
+"""Tests of the thesis's future work (chapter 8): the prototype value head (learning vector
+regression) and the prototype initialisation from the data in agents/a3c_lpq.py and
+agents/a3c_glpq.py, and online local weight sharing (centroids predicted per sample) in
+agents/a3c_lws.py, against hand-computed values, then end to end."""
 
 import math
 
@@ -144,6 +145,81 @@ def test_the_uniform_default_is_left_alone(script):
 
 
 # ---------------------------------------------------------------------------------------------
+# Online local weight sharing: --lws-centroid-source online
+# ---------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def lws():
+    return load_script("a3c_lws")
+
+
+def test_per_sample_similarity_by_hand(lws):
+    """Two samples with their own centroids: each sample's weights are the static formula's
+    for its centroids. Group-wise, S = 2, a 3x3 grid (0, 0.5, 1), Sigma = I."""
+    args = lws.Args(lws_kcps=2, lws_centroids="group")
+    layer = lws.LWSConv2d(4, 1, 3, 3, 9, args, torch.Generator().manual_seed(0))
+    centroids = torch.tensor([[[[0.0, 0.0]], [[1.0, 1.0]]], [[[0.5, 0.5]], [[0.0, 1.0]]]])
+    weights = layer.compute_similarity_weights(centroids)  # (B, H, W, S, maps)
+    assert weights.shape == (2, 3, 3, 2, 1)
+    # sample 0 at cell (0, 1), x = (0, 0.5): d = 0.25 and 1 + 0.25 -> 1 / (1 + e^-1)
+    assert weights[0, 0, 1, 0, 0].item() == pytest.approx(1 / (1 + math.exp(-1)), rel=1e-6)
+    # sample 1 at cell (2, 0), x = (1, 0): d = 0.5 and 1 + 1 = 2 -> 1 / (1 + e^-1.5)
+    assert weights[1, 2, 0, 0, 0].item() == pytest.approx(1 / (1 + math.exp(-1.5)), rel=1e-6)
+    for b in range(2):
+        with torch.no_grad():
+            layer.centroids.copy_(centroids[b])
+        torch.testing.assert_close(weights[b], layer.compute_similarity_weights())
+
+
+def online_and_static(lws, **flags):
+    import catch_env  # noqa: F401
+
+    nets = []
+    for source in ("static", "online"):
+        torch.manual_seed(0)
+        args = lws.resolve_defaults(lws.Args(lws_centroid_source=source, **flags))
+        nets.append(lws.ActorCritic(3, args))
+    return nets
+
+
+def test_online_centroids_start_at_the_static_ones(lws):
+    """At initialisation every sample's predicted centroids are the static initial ones (grid:
+    1/3 and 2/3), so the online network computes what the static one does."""
+    static, online = online_and_static(lws, lws_kcps=4, lws_centroid_init="grid")
+    online.load_state_dict(static.state_dict(), strict=False)  # the same kernels and heads
+    obs = torch.randint(0, 256, (3, 4, 84, 84), dtype=torch.uint8)
+    for first, second in zip(static(obs), online(obs), strict=True):
+        torch.testing.assert_close(first, second, rtol=1e-4, atol=1e-5)
+    predicted = online.centroid_predictor(obs.float() / 255)
+    for layer, centroids in zip(online.lws_layers, predicted, strict=True):
+        assert centroids.shape == (3, *layer.centroids.shape)
+        torch.testing.assert_close(centroids, layer.centroids.expand_as(centroids))
+
+
+def test_online_centroids_depend_on_the_input_and_learn(lws):
+    _, online = online_and_static(lws)
+    assert not any(isinstance(layer.centroids, torch.nn.Parameter) for layer in online.lws_layers)
+    obs = torch.randint(0, 256, (4, 4, 84, 84), dtype=torch.uint8)
+    log_probs, values = online(obs)
+    params = dict(online.centroid_predictor.named_parameters())
+    grads = torch.autograd.grad(values.sum() + log_probs[:, 0].sum(), list(params.values()))
+    assert all(torch.isfinite(g).all() for g in grads)
+    assert grads[list(params).index("heads.0.weight")].abs().sum() > 0  # the heads learn first
+    with torch.no_grad():
+        for head in online.centroid_predictor.heads:
+            head.weight.normal_(0.0, 0.1)
+    first, _ = online.centroid_predictor(obs.float() / 255)
+    assert (first[0] - first[1]).abs().max() > 1e-3  # each sample its own centroids
+    assert ((first > 0) & (first < 1)).all()  # frames in [0, 1]: the sigmoids not saturated
+
+
+def test_static_lws_is_unchanged_by_the_flag(lws):
+    static, _ = online_and_static(lws)
+    assert not hasattr(static, "centroid_predictor")
+    assert all(layer.sample_centroids is None for layer in static.lws_layers)
+    assert all(isinstance(layer.centroids, torch.nn.Parameter) for layer in static.lws_layers)
+
+
+# ---------------------------------------------------------------------------------------------
 # End to end, tiny budgets
 # ---------------------------------------------------------------------------------------------
 @pytest.mark.slow
@@ -159,3 +235,13 @@ def test_value_head_and_data_init_end_to_end(tmp_path, name):
                         "linear", timeout=60)  # fmt: skip
     assert result.returncode == 2
     assert "--value-head linear differs from the run's prototypes" in result.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("envs", ["1", "4"])  # K = 4: the activation replay's path
+def test_online_lws_end_to_end(tmp_path, envs):
+    flags = ["--lws-centroid-source", "online", "--envs-per-worker", envs]
+    budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
+    result = run_script("a3c_lws", *TINY, *budget, *flags, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert evaluation_steps(tmp_path)[-1] >= 2000
