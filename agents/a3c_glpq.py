@@ -124,6 +124,21 @@ class Args:
     the states of a short random-policy rollout, so that distances start at the features' scale"""
     prototype_init_bound: float = 1 / 16
     """the bound b of the prototype initialisation"""
+    prototype_growth: bool = False
+    """dynamic prototypes (chapter 8's future work): every --growth-interval global steps, on the
+    states of a short rollout of the current policy, each action may gain a prototype on its
+    farthest state (when that is --growth-ratio times the median distance away) and lose one
+    that is no state's nearest; in --max-prototypes-per-action slots (grow_and_prune)"""
+    max_prototypes_per_action: Annotated[
+        int | None, default_text("2 x --prototypes-per-action")
+    ] = None
+    """the slots per action of --prototype-growth; --prototypes-per-action of them start active"""
+    growth_interval: int = 50_000
+    """global steps between --prototype-growth steps"""
+    growth_ratio: float = 2.0
+    """--prototype-growth adds a prototype for action a when a state that chose a is this many
+    times the median distance (over all states, to their action's nearest prototype) away from
+    a's nearest prototype"""
     value_head: Literal["linear", "prototypes"] = "linear"
     """V(s): linear in h (the thesis's); prototypes (chapter 8's future work): learning vector
     regression, V = sum_j softmax_j(-beta d(h, u_j)) v_j over --value-prototypes prototypes u_j
@@ -205,7 +220,8 @@ def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
 # ----------------------------------------------------------------------------------------------
 # args a checkpoint's network depends on
 NETWORK_ARGS = ("env", "activation", "scale_obs", "prototypes_per_action", "distance",
-                "competition_size", "value_head", "value_prototypes", "mu_form", "temperature",
+                "competition_size", "value_head", "value_prototypes", "prototype_growth",
+                "max_prototypes_per_action", "mu_form", "temperature",
                 "tau_parametrization")  # fmt: skip
 NORM_EPS = 1e-8  # below this norm a vector counts as zero (cosine and Pearson distances)
 SQRT_EPS = 1e-12  # the Euclidean distance is sqrt(max(squared, SQRT_EPS)): no infinite gradient
@@ -247,19 +263,21 @@ def prototype_distances(
     raise ValueError(f"unknown distance {distance!r}")
 
 
-def relative_distances(distances: torch.Tensor) -> torch.Tensor:
+def relative_distances(
+    distances: torch.Tensor, d_minus: torch.Tensor | None = None
+) -> torch.Tensor:
     """mu_i = (d_- - d_i) / (d_- + d_i) of eq. 7.7, implemented as written (the thesis code had
     an operator-precedence slip here), for distances (B, A, P) -> (B, A, P) in [-1, 1]; d_- is
-    the distance to the nearest prototype of another action than i's."""
-    d_minus = nearest_other_action(distances)
+    the distance to the nearest prototype of another action than i's (by default, of all)."""
+    d_minus = nearest_other_action(distances) if d_minus is None else d_minus
     return (d_minus - distances) / (d_minus + distances + MU_EPS)
 
 
-def as_run_scores(distances: torch.Tensor) -> torch.Tensor:
+def as_run_scores(distances: torch.Tensor, d_minus: torch.Tensor | None = None) -> torch.Tensor:
     """d_- / (d_i + d_-) - d_i for distances (B, A, P) -> (B, A, P): what the thesis's code
     computed in place of mu_i (`d_i - d_- / (d_i + d_-)`, an operator-precedence slip, negated).
     It equals mu_i / 2 - d_i + 1/2: LPQ's -d_i plus half of GLPQ's term, unbounded below."""
-    d_minus = nearest_other_action(distances)
+    d_minus = nearest_other_action(distances) if d_minus is None else d_minus
     return d_minus / (distances + d_minus + MU_EPS) - distances
 
 
@@ -272,15 +290,25 @@ def nearest_other_action(distances: torch.Tensor) -> torch.Tensor:
 
 
 def glpq_log_policy(
-    distances: torch.Tensor, tau: torch.Tensor | float, k: int, mu_form: str = "text"
+    distances: torch.Tensor,
+    tau: torch.Tensor | float,
+    k: int,
+    mu_form: str = "text",
+    active: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """log pi(a) of eq. 7.10 from the distances (B, A, P): log sum over a's competing prototypes
     of exp(tau mu) minus log sum over all competing prototypes, stable through logsumexp; the
     competition (eq. 7.11) is each action's k nearest prototypes. mu_form "code" puts the
-    thesis's as-run scores (as_run_scores) in place of mu."""
-    scores = relative_distances(distances) if mu_form == "text" else as_run_scores(distances)
+    thesis's as-run scores (as_run_scores) in place of mu. active (A, P), with
+    --prototype-growth: the free slots neither compete nor count in d_-."""
+    masked = distances if active is None else distances.masked_fill(~active, math.inf)
+    d_minus = nearest_other_action(masked)
+    score = relative_distances if mu_form == "text" else as_run_scores
+    scores = score(distances, d_minus)
+    if active is not None:  # exp(tau * -inf) = 0 for tau > 0; the gradient there is 0
+        scores = scores.masked_fill(~active, -math.inf)
     if k < distances.shape[-1]:
-        nearest = distances.topk(k, dim=-1, largest=False, sorted=False).indices
+        nearest = masked.topk(k, dim=-1, largest=False, sorted=False).indices
         scores = scores.gather(-1, nearest)
     if mu_form == "text" and 0 < (tau.detach() if torch.is_tensor(tau) else tau) <= EXP_SAFE_TAU:
         # mu <= 1, so exp(tau (mu - 1)) lies in [exp(-2 tau), 1]: no overflow, no underflow to 0.
@@ -347,10 +375,19 @@ class ActorCritic(nn.Module):
             self.value = nn.Linear(256, 1)
         self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
         init_parameters(self, args.weight_init, args.bias_init)
-        per_action = args.prototypes_per_action
+        per_action = slots = args.prototypes_per_action
+        if args.prototype_growth:  # slots per action, of which per_action start active
+            slots = args.max_prototypes_per_action or 2 * per_action
+            if not per_action <= slots or args.distance == "inverse-squared-euclidean":
+                raise UsageError(
+                    "--prototype-growth needs --max-prototypes-per-action >= "
+                    f"--prototypes-per-action (got {slots} < {per_action}) and a distance >= 0"
+                )
+            if not (args.growth_interval > 0 and args.growth_ratio > 0):
+                raise UsageError("--growth-interval and --growth-ratio must be > 0")
         k = args.competition_size
-        self.competition_size = per_action if k is None else k
-        if per_action < 1 or not 1 <= self.competition_size <= per_action:
+        self.competition_size = slots if k is None else k
+        if per_action < 1 or not 1 <= self.competition_size <= slots:
             raise UsageError(
                 "--prototypes-per-action must be >= 1 and --competition-size in "
                 f"[1, --prototypes-per-action] (got {per_action} and {args.competition_size})"
@@ -360,13 +397,20 @@ class ActorCritic(nn.Module):
                 f"--prototype-init-bound must be > 0 (got {args.prototype_init_bound})"
             )
         self.num_actions, self.distance = num_actions, args.distance
-        # rows a * P ... a * P + P - 1 belong to action a
-        self.prototypes = nn.Parameter(torch.empty(num_actions * per_action, 256))
+        # rows a * P ... a * P + P - 1 belong to action a (P: the slots, with growth)
+        self.prototypes = nn.Parameter(torch.empty(num_actions * slots, 256))
         bound = args.prototype_init_bound
         with torch.no_grad():
             self.prototypes.uniform_(-bound, bound)
             if args.prototype_init == "uniform-clipped":
                 self.prototypes.clamp_(min=0.0)
+        if args.prototype_growth:
+            # 1 for an active slot, 0 for a free one. A parameter, so that theta's sync brings it
+            # to every worker, used detached so that its gradient is 0 and no optimizer moves it:
+            # only grow_and_prune writes it
+            active = torch.zeros(num_actions, slots)
+            active[:, :per_action] = 1.0
+            self.prototype_active = nn.Parameter(active.flatten())
         self.value_head = args.value_head
         if args.value_head == "prototypes":
             if args.value_prototypes < 1:
@@ -425,6 +469,20 @@ class ActorCritic(nn.Module):
         distances = prototype_distances(hidden, self.value_prototypes, self.distance)
         return prototype_regression(distances, self.log_value_beta.exp(), self.prototype_values)
 
+    def active_slots(self) -> torch.Tensor | None:
+        """(A, P) bool, True for the active prototypes; None without --prototype-growth."""
+        if not hasattr(self, "prototype_active"):
+            return None
+        return (self.prototype_active.detach() > 0.5).view(self.num_actions, -1)
+
+    def zero_gradient_anchor(self) -> torch.Tensor | float:
+        """0, through the slot mask, so that it is in the graph with a zero gradient (a dense
+        one: the gradient of a plain sum would be an expanded tensor, which clipping cannot
+        scale in place)."""
+        if not hasattr(self, "prototype_active"):
+            return 0.0
+        return (0.0 * self.prototype_active).sum()
+
     @torch.no_grad()
     def place_prototypes(self, hidden: torch.Tensor, rng: np.random.Generator) -> None:
         """--prototype-init data: each prototype (and value prototype) on a feature vector of
@@ -446,7 +504,11 @@ class ActorCritic(nn.Module):
         """log pi (B, A) from the features h (B, 256)."""
         distances = prototype_distances(hidden, self.prototypes, self.distance)
         distances = distances.view(len(hidden), self.num_actions, -1)  # (B, A, P)
-        return glpq_log_policy(distances, self.tau(), self.competition_size, self.mu_form)
+        active = self.active_slots()
+        log_policy = glpq_log_policy(
+            distances, self.tau(), self.competition_size, self.mu_form, active
+        )
+        return log_policy + self.zero_gradient_anchor()
 
     def set_progress(self, progress: float) -> None:
         """The fraction T / T_max of training done, which the p schedule follows."""
@@ -666,6 +728,93 @@ def random_play_frames(env_id: str, rng: np.random.Generator, seed: int) -> np.n
     return np.concatenate(frames)
 
 
+GROWTH_ENVS, GROWTH_STEPS = 16, 32  # --prototype-growth: 512 states of the current policy
+
+
+def grow_and_prune(
+    distances: torch.Tensor, actions: torch.Tensor, active: torch.Tensor, ratio: float
+) -> tuple[dict[int, int], dict[int, tuple[int, int]]]:
+    """The --prototype-growth rule on N states: distances (N, A, P) from each state's features
+    to every slot of every action, actions (N,) the actions the policy took there, active
+    (A, P) the slots in use. For each action a that some state took:
+    - prune: an active prototype of a that is no state's nearest among a's prototypes (over the
+      states that took a), while a keeps another: of those, the farthest on average from them;
+    - grow: where the state that took a farthest from a's nearest prototype is more than ratio
+      times the median of that distance (over all N states, each to its action's nearest
+      prototype) away, a prototype on that state, in the slot just pruned or a free one.
+    Returns ({a: the slot pruned}, {a: (the slot grown, the state's index)})."""
+    masked = distances.masked_fill(~active, math.inf)
+    own = masked[torch.arange(len(actions)), actions]  # (N, P): to the taken action's slots
+    nearest, winner = own.min(-1)
+    scale = nearest.median()
+    pruned, grown = {}, {}
+    for a in actions.unique().tolist():
+        rows = torch.where(actions == a)[0]
+        wins = torch.bincount(winner[rows], minlength=active.shape[1])
+        idle = active[a] & (wins == 0)
+        if idle.any() and active[a].sum() > 1:
+            mean = own[rows].mean(0)
+            pruned[a] = int(torch.where(idle, mean, -math.inf).argmax())
+        state = int(rows[nearest[rows].argmax()])
+        free = ~active[a]
+        if a in pruned:
+            free[pruned[a]] = True
+        if nearest[state] > ratio * scale and nearest[state] > 0 and free.any():
+            slot = pruned[a] if a in pruned else int(free.nonzero()[0])
+            grown[a] = (slot, state)
+    return pruned, grown
+
+
+def maintain_prototypes(shared: Shared, args: Args, global_step: int) -> None:
+    """--prototype-growth, in the main process beside the workers: every --growth-interval
+    global steps, grow_and_prune on the states of GROWTH_STEPS steps of GROWTH_ENVS envs under
+    the current global policy (actions sampled from pi). A grown prototype sits on its state's
+    features, its optimizer statistics restarted; the workers get the new slots with theta."""
+    if not args.prototype_growth:
+        return
+    model, due = shared.model, global_step // args.growth_interval
+    if getattr(model, "growth_round", None) is None:  # started (or resumed) here
+        model.growth_round = due
+    if due <= model.growth_round:
+        return
+    model.growth_round = due
+    if hasattr(model, "set_progress"):
+        model.set_progress(global_step / args.total_timesteps)
+    rng = np.random.default_rng([args.seed, due])
+    envs = make_vector_env(args.env, GROWTH_ENVS)
+    obs, _ = envs.reset(seed=int(rng.integers(2**31)))
+    frames, actions = [], []
+    with torch.no_grad():
+        for _ in range(GROWTH_STEPS):
+            probs = model(torch.from_numpy(obs))[0].float().exp().numpy()
+            action = sample_actions(probs, rng.random(len(obs)))
+            frames.append(obs)
+            actions.append(action)
+            obs, *_ = envs.step(action)
+        envs.close()
+        hidden = model.features(torch.from_numpy(np.concatenate(frames)))
+        distances = prototype_distances(hidden, model.prototypes, model.distance)
+        active = model.active_slots()
+        distances = distances.view(len(hidden), *active.shape)
+        taken = torch.from_numpy(np.concatenate(actions))
+        pruned, grown = grow_and_prune(distances, taken, active, args.growth_ratio)
+        slots, mask = active.shape[1], model.prototype_active
+        for a, slot in pruned.items():
+            mask[a * slots + slot] = 0.0
+        for a, (slot, state) in grown.items():
+            model.prototypes[a * slots + slot] = hidden[state]
+            mask[a * slots + slot] = 1.0
+        index = next(i for i, p in enumerate(shared.params) if p is model.prototypes)
+        shared.optimizer.restart(index, [a * slots + slot for a, (slot, _) in grown.items()])
+    if pruned or grown:
+        counts = model.active_slots().sum(1).tolist()
+        print(
+            f"prototype growth at step {global_step:,}: pruned for actions {sorted(pruned)}, "
+            f"grown for {sorted(grown)}; active per action {counts}",
+            flush=True,
+        )
+
+
 AGENT = Agent(
     script=os.path.basename(__file__),
     Args=Args,
@@ -674,6 +823,7 @@ AGENT = Agent(
     network_args=NETWORK_ARGS,
     worker=worker,
     initialize=initialize_network,
+    maintain=maintain_prototypes,
 )
 
 

@@ -1,7 +1,7 @@
 """Tests of the thesis's future work (chapter 8): the prototype value head (learning vector
-regression) and the prototype initialisation from the data in agents/a3c_lpq.py and
-agents/a3c_glpq.py, and online local weight sharing (centroids predicted per sample) in
-agents/a3c_lws.py, against hand-computed values, then end to end."""
+regression), the prototype initialisation from the data and dynamic prototypes in
+agents/a3c_lpq.py and agents/a3c_glpq.py, and online local weight sharing (centroids predicted
+per sample) in agents/a3c_lws.py, against hand-computed values, then end to end."""
 
 import math
 
@@ -145,6 +145,101 @@ def test_the_uniform_default_is_left_alone(script):
 
 
 # ---------------------------------------------------------------------------------------------
+# --prototype-growth: masked slots, grow_and_prune, maintain_prototypes
+# ---------------------------------------------------------------------------------------------
+def growth_case(idle_slot_wins: bool):
+    """4 states, 2 actions, 3 slots each; action 0 has slots 0 and 1 active, action 1 slot 0.
+    States 0-2 took action 0, state 3 action 1."""
+    active = torch.tensor([[True, True, False], [True, False, False]])
+    distances = torch.full((4, 2, 3), 50.0)
+    distances[0, 0] = torch.tensor([1.0, 5.0, 0.0])  # free slots' distances must not count
+    distances[1, 0] = torch.tensor([6.0, 2.0, 0.0] if idle_slot_wins else [2.0, 6.0, 0.0])
+    distances[2, 0] = torch.tensor([9.0, 20.0, 0.0])
+    distances[3, 1] = torch.tensor([3.0, 0.0, 0.0])
+    return distances, torch.tensor([0, 0, 0, 1]), active
+
+
+def test_grow_and_prune_by_hand(script):
+    # nearest to the taken action's active prototypes: 1, 2, 9, 3 -> median 2 (the lower
+    # middle value), so ratio 2 grows where a state is more than 4 away: state 2 for action 0
+    # (9); action 1's only state is 3 away. Slot 1 of action 0 is no state's nearest: pruned,
+    # and the new prototype takes its slot.
+    pruned, grown = script.grow_and_prune(*growth_case(False), ratio=2.0)
+    assert (pruned, grown) == ({0: 1}, {0: (1, 2)})
+    # slot 1 now wins state 1: nothing to prune; the new prototype goes to the free slot 2
+    pruned, grown = script.grow_and_prune(*growth_case(True), ratio=2.0)
+    assert (pruned, grown) == ({}, {0: (2, 2)})
+    # a larger ratio: no growth; an action's last prototype is never pruned
+    pruned, grown = script.grow_and_prune(*growth_case(False), ratio=5.0)
+    assert (pruned, grown) == ({0: 1}, {})
+
+
+def growth_network(script, **flags):
+    flags = {"prototypes_per_action": 2, "max_prototypes_per_action": 3, **flags}
+    return network(script, prototype_growth=True, **flags)
+
+
+def test_free_slots_change_nothing_and_get_no_gradient(script):
+    """The policy with a free slot (placed right on h, where it would dominate) is the policy of
+    the active prototypes alone; gradients are finite and the mask's is exactly 0."""
+    # k = 2 in both: GLPQ's hot tau counts k |A| competitors (with growth k defaults to the slots)
+    model, _ = growth_network(script, competition_size=2)
+    assert model.prototypes.shape == (9, 256) and model.active_slots().sum().item() == 6
+    hidden = torch.rand(5, 256) * 30
+    with torch.no_grad():
+        model.prototypes.view(3, 3, 256)[:, 2] = hidden[0]  # the free slots, on h
+    log_probs = model.log_policy(hidden)
+    active_only, _ = network(script, prototypes_per_action=2, competition_size=2)
+    with torch.no_grad():
+        active_only.prototypes.copy_(model.prototypes.view(3, 3, 256)[:, :2].reshape(6, 256))
+    torch.testing.assert_close(log_probs, active_only.log_policy(hidden))
+    grads = torch.autograd.grad(log_probs[:, 1].sum(), [model.prototypes, model.prototype_active])
+    assert torch.isfinite(grads[0]).all()
+    assert grads[0].view(3, 3, 256)[:, 2].abs().max() == 0  # free slots: no gradient
+    assert grads[1].abs().max() == 0
+
+
+def test_bad_growth_flags_are_usage_errors(script):
+    with pytest.raises(script.UsageError, match="--max-prototypes-per-action"):
+        growth_network(script, prototypes_per_action=4)  # 3 slots < 4
+    with pytest.raises(script.UsageError, match="--growth-interval"):
+        growth_network(script, growth_interval=0)
+
+
+def test_maintain_prototypes_grows_on_the_policys_states(script):
+    """On Catch, with a tiny ratio every action that the policy took gains a prototype on one of
+    its states' features, in a free or pruned slot, with its optimizer statistics restarted;
+    every action keeps at least one prototype, and nothing happens before the interval."""
+    import types
+
+    from a3c_runtime.hogwild import SharedRMSprop
+
+    torch.manual_seed(0)
+    model, args = growth_network(script, growth_ratio=1e-6, growth_interval=100, seed=2)
+    params = list(model.parameters())
+    optimizer = SharedRMSprop(params, 0.99, 0.1, initial=0.0)
+    shared = types.SimpleNamespace(model=model, params=params, optimizer=optimizer)
+    index = next(i for i, p in enumerate(params) if p is model.prototypes)
+    shared.optimizer.square_avg[index].fill_(5.0)
+    before = model.prototypes.detach().clone()
+    script.maintain_prototypes(shared, args, 0)
+    script.maintain_prototypes(shared, args, 99)
+    torch.testing.assert_close(model.prototypes.detach(), before)  # not yet
+    script.maintain_prototypes(shared, args, 100)
+    active = model.active_slots()
+    assert (active.sum(1) >= 1).all() and (active.sum(1) <= 3).all()
+    changed = (model.prototypes.detach() != before).any(1).nonzero().flatten().tolist()
+    assert changed  # some action grew
+    frames = torch.from_numpy(script.random_play_frames("Catch-v0", np.random.default_rng(0), 0))
+    for row in changed:
+        assert active.flatten()[row]
+        assert shared.optimizer.square_avg[index][row].abs().max() == 0  # restarted
+    unchanged = [row for row in range(9) if row not in changed]
+    assert (shared.optimizer.square_avg[index][unchanged] == 5.0).all()
+    assert frames.shape[0] == script.DATA_INIT_STEPS * script.DATA_INIT_ENVS
+
+
+# ---------------------------------------------------------------------------------------------
 # Online local weight sharing: --lws-centroid-source online
 # ---------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
@@ -235,6 +330,17 @@ def test_value_head_and_data_init_end_to_end(tmp_path, name):
                         "linear", timeout=60)  # fmt: skip
     assert result.returncode == 2
     assert "--value-head linear differs from the run's prototypes" in result.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["a3c_lpq", "a3c_glpq"])
+def test_prototype_growth_end_to_end(tmp_path, name):
+    flags = ["--prototype-growth", "--growth-interval", "500", "--growth-ratio", "1e-6"]
+    budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
+    result = run_script(name, *TINY, *budget, *flags, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "prototype growth at step" in result.stdout
+    assert evaluation_steps(tmp_path)[-1] >= 2000
 
 
 @pytest.mark.slow

@@ -86,7 +86,10 @@ class Agent:
       checkpoints' runs had where it is not the flag's default (e.g. SS's --conv-layout: final
       before it existed);
     - `initialize(network, args)` (optional): sets a new run's global network from data before
-      the workers start (LPQ's --prototype-init data); not called when resuming.
+      the workers start (LPQ's --prototype-init data); not called when resuming;
+    - `maintain(shared, args, global_step)` (optional): called by the main process about every
+      0.1 s while the workers train, for upkeep of the global network that is part of the
+      algorithm but no worker's (LPQ's --prototype-growth); it decides itself when to act.
     """
 
     script: str
@@ -97,6 +100,7 @@ class Agent:
     worker: Callable[..., None]
     checkpoint_defaults: dict[str, Any] = field(default_factory=dict)
     initialize: Callable[[nn.Module, Any], None] | None = None
+    maintain: Callable[[Any, Any, int], None] | None = None
 
     def trained_args(self, checkpoint: dict) -> dict[str, Any]:
         """The flags a checkpoint was trained with; a flag it predates has its

@@ -131,6 +131,8 @@ def watch(
                 outcome = "done"
             elif args.time_limit is not None and now - log.start >= args.time_limit:
                 outcome = "time limit"
+            if agent.maintain is not None:
+                agent.maintain(shared, args, global_step)
             if global_step >= next_checkpoint:
                 save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script)
                 interval = args.checkpoint_interval

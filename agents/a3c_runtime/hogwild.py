@@ -94,8 +94,13 @@ class SharedRMSprop:
     ms = `initial` (0 in the thesis's code; TensorFlow's RMSPropOptimizer starts at 1)."""
 
     def __init__(self, params: list[torch.Tensor], decay: float, eps: float, initial: float = 0.0):
-        self.params, self.decay, self.eps = params, decay, eps
+        self.params, self.decay, self.eps, self.initial = params, decay, eps, initial
         self.square_avg = [torch.full_like(p, initial).share_memory_() for p in params]
+
+    @torch.no_grad()
+    def restart(self, index: int, rows: list[int]) -> None:
+        """The statistics of rows of parameter `index` as at the start (a re-used slot)."""
+        self.square_avg[index][rows] = self.initial
 
     @torch.no_grad()
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
@@ -123,6 +128,12 @@ class SharedAdam:
         self.exp_avg = [torch.zeros_like(p).share_memory_() for p in params]
         self.exp_avg_sq = [torch.zeros_like(p).share_memory_() for p in params]
         self.step_count = torch.zeros(1, dtype=torch.float64).share_memory_()
+
+    @torch.no_grad()
+    def restart(self, index: int, rows: list[int]) -> None:
+        """The moments of rows of parameter `index` as at the start (a re-used slot)."""
+        self.exp_avg[index][rows] = 0.0
+        self.exp_avg_sq[index][rows] = 0.0
 
     @torch.no_grad()
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
