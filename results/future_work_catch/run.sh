@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The thesis's future work (chapter 8, issue 28) on Catch at the fast setting: each idea against
+# the thesis's version of the same script, 5 seeds per configuration (sweep.py run seeds 1, 1001,
+# ..., 4001: run i has the same seed in every configuration, so runs pair up), 1M steps,
+# 2 workers x 16 envs (--envs-per-worker 16, the fast setting), one run at a time on 2 cores.
+# Resumable: each sweep skips the runs already in its results.csv.
+#   bash results/future_work_catch/run.sh            # every configuration
+#   bash results/future_work_catch/run.sh glpq_data  # some of them
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+OUT=results/future_work_catch
+RUNS=${RUNS:-5}
+FAST=(--envs-per-worker 16 --num-workers 2)
+declare -A SCRIPT FLAGS
+SCRIPT[lpq]=a3c_lpq;             FLAGS[lpq]=""
+SCRIPT[lpq_value]=a3c_lpq;       FLAGS[lpq_value]="--value-head prototypes"
+SCRIPT[lpq_data]=a3c_lpq;        FLAGS[lpq_data]="--prototype-init data"
+SCRIPT[lpq_growth]=a3c_lpq;      FLAGS[lpq_growth]="--prototype-growth"
+SCRIPT[glpq]=a3c_glpq;           FLAGS[glpq]=""
+SCRIPT[glpq_value]=a3c_glpq;     FLAGS[glpq_value]="--value-head prototypes"
+SCRIPT[glpq_data]=a3c_glpq;      FLAGS[glpq_data]="--prototype-init data"
+SCRIPT[glpq_growth]=a3c_glpq;    FLAGS[glpq_growth]="--prototype-growth"
+SCRIPT[lws]=a3c_lws;             FLAGS[lws]=""
+SCRIPT[lws_online]=a3c_lws;      FLAGS[lws_online]="--lws-centroid-source online"
+ORDER=(glpq glpq_data lpq lpq_data glpq_value lpq_value glpq_growth lpq_growth lws lws_online)
+for name in "${@:-${ORDER[@]}}"; do
+    [[ -n "${SCRIPT[$name]:-}" ]] || { echo "unknown configuration $name; valid: ${ORDER[*]}" >&2; exit 2; }
+    # shellcheck disable=SC2086
+    python agents/sweep.py "agents/${SCRIPT[$name]}.py" --out "$OUT/$name" --runs "$RUNS" \
+        --total-timesteps 1000000 -- "${FAST[@]}" ${FLAGS[$name]}
+done
