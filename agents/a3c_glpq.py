@@ -389,8 +389,8 @@ class ActorCritic(nn.Module):
         self.competition_size = slots if k is None else k
         if per_action < 1 or not 1 <= self.competition_size <= slots:
             raise UsageError(
-                "--prototypes-per-action must be >= 1 and --competition-size in "
-                f"[1, --prototypes-per-action] (got {per_action} and {args.competition_size})"
+                "--prototypes-per-action must be >= 1 and --competition-size in [1, the "
+                f"prototypes per action, {slots}] (got {per_action} and {args.competition_size})"
             )
         if not args.prototype_init_bound > 0:
             raise UsageError(
