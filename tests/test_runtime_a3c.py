@@ -334,3 +334,25 @@ def test_a_failed_tensorboard_write_ends_the_run_in_one_line(tmp_path):
         assert_all_gone(pids)
     finally:
         subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def _limit_file_size() -> None:
+    import resource
+
+    limit = 4 << 20  # below the FC layer's 5.3 MB: torch's shared-memory files hit it
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))  # Python ignores SIGXFSZ
+
+
+def test_no_room_for_the_shared_network_is_one_line_and_creates_nothing(tmp_path):
+    """A real failure: a file size limit (ulimit -f) below the network's largest tensor, which
+    torch puts in a shared-memory file before any run folder exists."""
+    run_dir = tmp_path / "run"
+    result = subprocess.run(
+        [sys.executable, str(AGENTS / "a3c_ff.py"), *TINY, "--run-dir", str(run_dir)],
+        capture_output=True, text=True, timeout=120, cwd=ROOT, preexec_fn=_limit_file_size,
+    )  # fmt: skip
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("error: cannot put the network (5.")
+    assert line.endswith("free space in /dev/shm or raise the file size limit (ulimit -f)")
+    assert not run_dir.exists()

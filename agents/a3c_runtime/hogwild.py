@@ -12,6 +12,8 @@ import numpy as np
 import torch
 import torch.nn as nn
 
+from .flags import UsageError
+
 
 class Shared:
     """Everything the processes share: the global network theta and the optimizer statistics
@@ -24,7 +26,14 @@ class Shared:
 
     def __init__(self, model: nn.Module, args: Any, ctx: Any):
         self.model = model
-        self.model.share_memory()
+        try:
+            self.model.share_memory()
+        except RuntimeError as e:  # /dev/shm full, or a file size limit (ulimit -f) below a tensor
+            size = sum(t.numel() * t.element_size() for t in model.state_dict().values())
+            raise UsageError(
+                f"cannot put the network ({size / 2**20:.1f} MiB) in shared memory: {e}; free "
+                "space in /dev/shm or raise the file size limit (ulimit -f)"
+            ) from None
         self.params = list(self.model.parameters())
         self.optimizer = make_optimizer(self.params, args)
         # one step counter per worker, written only by its worker: lock-free and exact
