@@ -43,14 +43,15 @@ MARGIN = 0.05  # a Catch score difference (success rate) below which two lines a
 MAX_RUNS = 400  # beyond this many runs per line, more runs of 250k steps would not decide it
 
 
-def scores(folder: str) -> dict[str, float]:
-    """run_id -> score of the finished runs in folder/results.csv ({} if there is none)."""
+def scores(folder: str, column: str = "score") -> dict[str, float]:
+    """run_id -> score of the finished runs in folder/results.csv ({} if there is none): the
+    mean of the final 5 evaluations, or with column "score_all" the mean of all of them."""
     path = ROOT / folder / "results.csv"
     if not path.is_file():
         return {}
     with open(path, newline="") as f:
         return {
-            row["run_id"]: float(row["score"]) for row in csv.DictReader(f) if row["status"] == "ok"
+            row["run_id"]: float(row[column]) for row in csv.DictReader(f) if row["status"] == "ok"
         }
 
 
@@ -92,7 +93,8 @@ def evidence(claim: dict) -> tuple[str, str, str]:
     """(our numbers, the effect with its interval, the verdict) of one claim."""
     if "baseline" not in claim:
         return claim["ours"], "-", claim["verdict"]
-    base, line = scores(claim["baseline"]), scores(claim["line"])
+    column = claim.get("score", "score")
+    base, line = scores(claim["baseline"], column), scores(claim["line"], column)
     paired = sorted(set(base) & set(line))
     if len(paired) < 2:  # the command goes to the page's list of what is missing
         return "not run yet (the command is in the last section)", "-", "not run yet"
@@ -102,7 +104,9 @@ def evidence(claim: dict) -> tuple[str, str, str]:
     effect = float(np.mean(x - b))
     names = claim.get("names", ["baseline", "line"])
     ours = (
-        f"{names[1]} {x.mean():.3f} vs {names[0]} {b.mean():.3f} (n = {len(paired)} paired "
+        f"{names[1]} {x.mean():.3f} vs {names[0]} {b.mean():.3f}"
+        + (" (the mean over all evaluations)" if column == "score_all" else "")
+        + f" (n = {len(paired)} paired "
         f"runs; [{claim['line']}]({link(claim['line'])}), [{claim['baseline']}]"
         f"({link(claim['baseline'])}))"
     )

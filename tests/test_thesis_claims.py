@@ -89,14 +89,17 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
         (tmp_path / folder).mkdir()
         with open(tmp_path / folder / "results.csv", "w", newline="") as f:
             writer = csv.writer(f)
-            writer.writerow(["run_id", "status", "score"])
+            writer.writerow(["run_id", "status", "score", "score_all"])
             for i, value in enumerate(values):
-                writer.writerow([f"run-{i:04d}", "ok", value])
+                writer.writerow([f"run-{i:04d}", "ok", value, value / 2])
     claim = {"baseline": "a", "line": "b", "names": ["A", "B"], "expect": "better",
              "command": "make b"}  # fmt: skip
     ours, effect, verdict = claims.evidence(claim)
     assert "n = 3 paired runs" in ours and effect.startswith("+0.200")  # run-0003 has no pair
     assert verdict == "reproduced"  # the same +0.2 in every pair
+    # "score": "score_all" compares the mean over all evaluations (here half the final score)
+    ours, effect, verdict = claims.evidence({**claim, "score": "score_all"})
+    assert "mean over all evaluations" in ours and effect.startswith("+0.100")
     ours, effect, verdict = claims.evidence({**claim, "line": "missing"})
     assert verdict == "not run yet" and ours.startswith("not run yet") and effect == "-"
     data = {"intro": "# Claims", "outro": "## Missing", "section": [
