@@ -123,7 +123,7 @@ class Args:
     prototype_growth: bool = False
     """dynamic prototypes (chapter 8's future work): every --growth-interval global steps, on the
     states of a short rollout of the current policy, each action may gain a prototype on its
-    farthest state (when that is --growth-ratio times the median distance away) and lose one
+    farthest state (when that is --growth-ratio times the mean distance away) and lose one
     that is no state's nearest; in --max-prototypes-per-action slots (grow_and_prune)"""
     max_prototypes_per_action: Annotated[
         int | None, default_text("2 x --prototypes-per-action")
@@ -133,7 +133,7 @@ class Args:
     """global steps between --prototype-growth steps"""
     growth_ratio: float = 2.0
     """--prototype-growth adds a prototype for action a when a state that chose a is this many
-    times the median distance (over all states, to their action's nearest prototype) away from
+    times the mean distance (over all states, to their action's nearest prototype) away from
     a's nearest prototype"""
     value_head: Literal["linear", "prototypes"] = "linear"
     """V(s): linear in h (the thesis's); prototypes (chapter 8's future work): learning vector
@@ -365,14 +365,16 @@ class ActorCritic(nn.Module):
     @torch.no_grad()
     def place_prototypes(self, hidden: torch.Tensor, rng: np.random.Generator) -> None:
         """--prototype-init data: each prototype (and value prototype) on a feature vector of
-        hidden (N, 256), distinct ones while there are enough; the value kernel's beta at 1 over
-        the mean distance from the features to the value prototypes, so that V starts smooth."""
+        hidden (N, 256), distinct vectors while there are enough; the value kernel's beta at 1
+        over the mean distance from the features to the value prototypes, so that V starts
+        smooth."""
+        distinct = torch.unique(hidden, dim=0)  # sorted: the draw below makes the order random
         for prototypes in (self.prototypes, getattr(self, "value_prototypes", None)):
             if prototypes is not None:
                 rows = rng.choice(
-                    len(hidden), len(prototypes), replace=len(prototypes) > len(hidden)
+                    len(distinct), len(prototypes), replace=len(prototypes) > len(distinct)
                 )
-                prototypes.copy_(hidden[torch.from_numpy(rows)])
+                prototypes.copy_(distinct[torch.from_numpy(rows)])
         if self.value_head == "prototypes":
             distances = prototype_distances(hidden, self.value_prototypes, self.distance)
             scale = distances.abs().mean().item()
@@ -574,10 +576,10 @@ def random_play_frames(env_id: str, rng: np.random.Generator, seed: int) -> np.n
     """The frames (DATA_INIT_STEPS * DATA_INIT_ENVS, 4, 84, 84) of a uniformly random policy."""
     envs = make_vector_env(env_id, DATA_INIT_ENVS)
     obs, _ = envs.reset(seed=seed)
-    frames = [obs]
+    frames = [obs.copy()]  # copies: a vector env may return the same buffer every step
     for _ in range(DATA_INIT_STEPS - 1):
         obs, *_ = envs.step(rng.integers(envs.single_action_space.n, size=envs.num_envs))
-        frames.append(obs)
+        frames.append(obs.copy())
     envs.close()
     return np.concatenate(frames)
 
@@ -594,13 +596,13 @@ def grow_and_prune(
     - prune: an active prototype of a that is no state's nearest among a's prototypes (over the
       states that took a), while a keeps another: of those, the farthest on average from them;
     - grow: where the state that took a farthest from a's nearest prototype is more than ratio
-      times the median of that distance (over all N states, each to its action's nearest
+      times the mean of that distance (over all N states, each to its action's nearest
       prototype) away, a prototype on that state, in the slot just pruned or a free one.
     Returns ({a: the slot pruned}, {a: (the slot grown, the state's index)})."""
     masked = distances.masked_fill(~active, math.inf)
     own = masked[torch.arange(len(actions)), actions]  # (N, P): to the taken action's slots
     nearest, winner = own.min(-1)
-    scale = nearest.median()
+    scale = nearest.mean()  # not the median: with prototypes on states, most distances are 0
     pruned, grown = {}, {}
     for a in actions.unique().tolist():
         rows = torch.where(actions == a)[0]
@@ -613,7 +615,7 @@ def grow_and_prune(
         free = ~active[a]
         if a in pruned:
             free[pruned[a]] = True
-        if nearest[state] > ratio * scale and nearest[state] > 0 and free.any():
+        if nearest[state] > ratio * scale > 0 and free.any():
             slot = pruned[a] if a in pruned else int(free.nonzero()[0])
             grown[a] = (slot, state)
     return pruned, grown
@@ -642,7 +644,7 @@ def maintain_prototypes(shared: Shared, args: Args, global_step: int) -> None:
         for _ in range(GROWTH_STEPS):
             probs = model(torch.from_numpy(obs))[0].float().exp().numpy()
             action = sample_actions(probs, rng.random(len(obs)))
-            frames.append(obs)
+            frames.append(obs.copy())  # the env may reuse its buffer
             actions.append(action)
             obs, *_ = envs.step(action)
         envs.close()

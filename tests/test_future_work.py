@@ -124,12 +124,16 @@ def test_data_initialisation_on_catch_places_prototypes_at_the_features_scale(sc
     script.initialize_network(model, args)
     frames = script.random_play_frames("Catch-v0", np.random.default_rng(3), 3)
     assert frames.shape == (script.DATA_INIT_STEPS * script.DATA_INIT_ENVS, 4, 84, 84)
+    # every step's states, not 32 copies of the last (the vector env reuses its buffer)
+    distinct = np.unique(frames.reshape(len(frames), -1), axis=0)
+    assert len(distinct) > 4 * script.DATA_INIT_ENVS
     with torch.no_grad():
         hidden = model.features(torch.from_numpy(frames))
         nearest_uniform = script.prototype_distances(hidden, uniform, "squared-euclidean")
         placed = script.prototype_distances(hidden, model.prototypes, "squared-euclidean")
-    # every prototype sits on a feature of the random play's states
+    # every prototype sits on a feature of the random play's states, each on its own
     assert placed.amin(0).max().item() == pytest.approx(0.0, abs=1e-2)
+    assert len(torch.unique(model.prototypes.detach(), dim=0)) == len(model.prototypes)
     assert nearest_uniform.amin(0).min().item() > 100
     torch.manual_seed(3)
     again, _ = network(script, prototype_init="data", value_head="prototypes", seed=3)
@@ -160,17 +164,17 @@ def growth_case(idle_slot_wins: bool):
 
 
 def test_grow_and_prune_by_hand(script):
-    # nearest to the taken action's active prototypes: 1, 2, 9, 3 -> median 2 (the lower
-    # middle value), so ratio 2 grows where a state is more than 4 away: state 2 for action 0
-    # (9); action 1's only state is 3 away. Slot 1 of action 0 is no state's nearest: pruned,
+    # nearest to the taken action's active prototypes: 1, 2, 9, 3 -> mean 3.75, so ratio 2
+    # grows where a state is more than 7.5 away: state 2 for action 0 (9); action 1's only
+    # state is 3 away. Slot 1 of action 0 is no state's nearest: pruned,
     # and the new prototype takes its slot.
     pruned, grown = script.grow_and_prune(*growth_case(False), ratio=2.0)
     assert (pruned, grown) == ({0: 1}, {0: (1, 2)})
     # slot 1 now wins state 1: nothing to prune; the new prototype goes to the free slot 2
     pruned, grown = script.grow_and_prune(*growth_case(True), ratio=2.0)
     assert (pruned, grown) == ({}, {0: (2, 2)})
-    # a larger ratio: no growth; an action's last prototype is never pruned
-    pruned, grown = script.grow_and_prune(*growth_case(False), ratio=5.0)
+    # ratio 2.5 (9.375 > 9): no growth; an action's last prototype is never pruned
+    pruned, grown = script.grow_and_prune(*growth_case(False), ratio=2.5)
     assert (pruned, grown) == ({0: 1}, {})
 
 
@@ -197,6 +201,21 @@ def test_free_slots_change_nothing_and_get_no_gradient(script):
     assert torch.isfinite(grads[0]).all()
     assert grads[0].view(3, 3, 256)[:, 2].abs().max() == 0  # free slots: no gradient
     assert grads[1].abs().max() == 0
+
+
+@pytest.mark.parametrize("mu_form", ["text", "code"])
+@pytest.mark.parametrize("parametrization", ["log", "plain"])
+def test_free_slots_give_a_trainable_tau_a_finite_gradient(mu_form, parametrization):
+    """GLPQ's free slots are masked after the product with tau: masking the scores before it
+    would make tau's gradient 0 * -inf = NaN (the default k counts every slot)."""
+    glpq = load_script("a3c_glpq")
+    model, _ = network(glpq, prototype_growth=True, temperature="trainable", mu_form=mu_form,
+                       tau_parametrization=parametrization)  # fmt: skip
+    hidden = torch.rand(6, 256) * 30
+    log_probs = model.log_policy(hidden)
+    tau = model.log_tau if parametrization == "log" else model.plain_tau
+    (grad,) = torch.autograd.grad(log_probs[:, 0].sum(), [tau])
+    assert torch.isfinite(log_probs).all() and torch.isfinite(grad) and grad != 0
 
 
 def test_bad_growth_flags_are_usage_errors(script):

@@ -353,6 +353,6 @@ def test_no_room_for_the_shared_network_is_one_line_and_creates_nothing(tmp_path
     )  # fmt: skip
     assert result.returncode == 2
     (line,) = result.stderr.strip().splitlines()
-    assert line.startswith("error: cannot put the network (5.")
+    assert line.startswith("error: cannot put the network and its optimizer statistics (10.")
     assert line.endswith("free space in /dev/shm or raise the file size limit (ulimit -f)")
     assert not run_dir.exists()

@@ -26,16 +26,18 @@ class Shared:
 
     def __init__(self, model: nn.Module, args: Any, ctx: Any):
         self.model = model
+        self.params = list(self.model.parameters())
         try:
             self.model.share_memory()
+            self.optimizer = make_optimizer(self.params, args)
         except RuntimeError as e:  # /dev/shm full, or a file size limit (ulimit -f) below a tensor
-            size = sum(t.numel() * t.element_size() for t in model.state_dict().values())
+            network = sum(t.numel() * t.element_size() for t in model.state_dict().values())
+            copies = 3 if args.optimizer == "adam" else 2  # theta and the optimizer's statistics
+            size = copies * network / 2**20
             raise UsageError(
-                f"cannot put the network ({size / 2**20:.1f} MiB) in shared memory: {e}; free "
-                "space in /dev/shm or raise the file size limit (ulimit -f)"
+                f"cannot put the network and its optimizer statistics ({size:.1f} MiB) in shared "
+                f"memory: {e}; free space in /dev/shm or raise the file size limit (ulimit -f)"
             ) from None
-        self.params = list(self.model.parameters())
-        self.optimizer = make_optimizer(self.params, args)
         # one step counter per worker, written only by its worker: lock-free and exact
         self.steps = torch.zeros(args.num_workers, dtype=torch.int64).share_memory_()
         self.base_step = torch.zeros(1, dtype=torch.int64).share_memory_()  # from --resume
@@ -140,7 +142,9 @@ class SharedAdam:
 
     @torch.no_grad()
     def restart(self, index: int, rows: list[int]) -> None:
-        """The moments of rows of parameter `index` as at the start (a re-used slot)."""
+        """The moments of rows of parameter `index` back to 0 (a re-used slot). Not exactly a
+        fresh start: the bias correction follows the shared step count, so those rows' first
+        steps are smaller than a new Adam's."""
         self.exp_avg[index][rows] = 0.0
         self.exp_avg_sq[index][rows] = 0.0
 
