@@ -22,7 +22,7 @@ SCRIPT[glpq_data]=a3c_glpq;      FLAGS[glpq_data]="--prototype-init data"
 SCRIPT[glpq_growth]=a3c_glpq;    FLAGS[glpq_growth]="--prototype-growth"
 SCRIPT[lws]=a3c_lws;             FLAGS[lws]=""
 SCRIPT[lws_online]=a3c_lws;      FLAGS[lws_online]="--lws-centroid-source online"
-ORDER=(glpq glpq_data glpq_value glpq_growth lws lws_online lpq lpq_data lpq_value lpq_growth)
+ORDER=(glpq glpq_data glpq_value glpq_growth lpq lpq_data lpq_value lpq_growth lws lws_online)
 for name in "${@:-${ORDER[@]}}"; do
     [[ -n "${SCRIPT[$name]:-}" ]] || { echo "unknown configuration $name; valid: ${ORDER[*]}" >&2; exit 2; }
     # shellcheck disable=SC2086

@@ -1,0 +1,121 @@
+"""The future-work runs on Catch: a table of scores and a figure of learning curves.
+
+    cd results/future_work_catch && python summary.py > summary.txt
+
+Reads each configuration's results.csv (one row per run: its score, the mean of the final 5
+evaluations) and, where the per-run folders are still here (runs/, not committed), their
+evaluations.csv files, which it gathers into curves.csv (committed) so that the figure can be
+drawn again from a clean clone. Writes curves.png: per idea, each configuration's mean
+evaluation over its runs against global steps, with +-1 standard error over the runs shaded.
+The paired comparisons with their intervals are on docs/claims.md.
+"""
+
+from __future__ import annotations
+
+import csv
+import statistics
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+# (panel title, [(baseline, variant), ...]): each idea against the thesis's version of its script
+PANELS = [
+    ("prototype value head", [("lpq", "lpq_value"), ("glpq", "glpq_value")]),
+    ("prototypes from the data", [("lpq", "lpq_data"), ("glpq", "glpq_data")]),
+    ("prototype growth", [("lpq", "lpq_growth"), ("glpq", "glpq_growth")]),
+    ("online local weight sharing", [("lws", "lws_online")]),
+]
+CONFIGS = list(dict.fromkeys(name for _, pairs in PANELS for pair in pairs for name in pair))
+
+
+def run_scores(config: str) -> dict[str, float]:
+    """run_id -> score of the finished runs of one configuration ({} if none)."""
+    path = HERE / config / "results.csv"
+    if not path.is_file():
+        return {}
+    with open(path, newline="") as f:
+        return {r["run_id"]: float(r["score"]) for r in csv.DictReader(f) if r["status"] == "ok"}
+
+
+def gather_curves() -> list[dict[str, str]]:
+    """Rows (config, run_id, global_step, mean_return), from runs/ or else from curves.csv."""
+    saved: list[dict[str, str]] = []
+    if (HERE / "curves.csv").is_file():
+        with open(HERE / "curves.csv", newline="") as f:
+            saved = list(csv.DictReader(f))
+    rows = []
+    for config in CONFIGS:
+        for run_id in sorted(run_scores(config)):
+            path = HERE / config / "runs" / run_id / "evaluations.csv"
+            if path.is_file():
+                with open(path, newline="") as f:
+                    rows += [
+                        {"config": config, "run_id": run_id, "global_step": r["global_step"],
+                         "mean_return": r["mean_return"]}
+                        for r in csv.DictReader(f)
+                    ]  # fmt: skip
+            else:
+                rows += [r for r in saved if r["config"] == config and r["run_id"] == run_id]
+    with open(HERE / "curves.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, ["config", "run_id", "global_step", "mean_return"])
+        writer.writeheader()
+        writer.writerows(rows)
+    return rows
+
+
+def plot(rows: list[dict[str, str]]) -> None:
+    fig, axes = plt.subplots(1, len(PANELS), figsize=(4.2 * len(PANELS), 3.6), sharey=True)
+    for ax, (title, pairs) in zip(axes, PANELS, strict=True):
+        for config in dict.fromkeys(name for pair in pairs for name in pair):
+            runs: dict[str, list[tuple[int, float]]] = {}
+            for r in rows:
+                if r["config"] == config:
+                    runs.setdefault(r["run_id"], []).append(
+                        (int(r["global_step"]), float(r["mean_return"]))
+                    )
+            if not runs:
+                continue
+            # evaluations fall within a few hundred steps of each 50,000: align them by index
+            length = min(len(points) for points in runs.values())
+            steps = np.array([p[0] for p in next(iter(runs.values()))[:length]])
+            values = np.array([[p[1] for p in points[:length]] for points in runs.values()])
+            mean = values.mean(axis=0)
+            se = values.std(axis=0, ddof=1) / np.sqrt(len(runs)) if len(runs) > 1 else 0 * mean
+            dashed = config in {pair[0] for pair in pairs}
+            label = f"{config} (n={len(runs)})"
+            (line,) = ax.plot(steps, mean, "--" if dashed else "-", label=label)
+            ax.fill_between(steps, mean - se, mean + se, alpha=0.15, color=line.get_color())
+        ax.set_title(title)
+        ax.set_xlabel("global steps")
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8, loc="lower right")
+    axes[0].set_ylabel("mean evaluation return (50 episodes)")
+    fig.suptitle("Catch-v0, the thesis's future work: 1M steps, 2 workers x 16 envs, seeds 1..4001")
+    fig.tight_layout()
+    fig.savefig(HERE / "curves.png", dpi=110)
+
+
+def main() -> None:
+    print("| configuration | runs | score (final 5), mean +- s.e. over runs | runs' scores |")
+    print("|---|---:|---|---|")
+    for config in CONFIGS:
+        scores = run_scores(config)
+        if not scores:
+            print(f"| {config} | 0 | not run yet | |")
+            continue
+        values = [scores[r] for r in sorted(scores)]
+        se = statistics.stdev(values) / len(values) ** 0.5 if len(values) > 1 else float("nan")
+        listed = ", ".join(f"{v:.3f}" for v in values)
+        mean = statistics.mean(values)
+        print(f"| {config} | {len(values)} | {mean:.3f} +- {se:.3f} | {listed} |")
+    plot(gather_curves())
+
+
+if __name__ == "__main__":
+    main()
