@@ -31,6 +31,8 @@ PANELS = [
     ("online local weight sharing", [("lws", "lws_online")]),
 ]
 CONFIGS = list(dict.fromkeys(name for _, pairs in PANELS for pair in pairs for name in pair))
+# a script's thesis version dashed, its idea solid, in the same colour in every panel
+COLOURS = {"lpq": ("C0", "C1"), "glpq": ("C2", "C3"), "lws": ("C4", "C5")}
 
 
 def run_scores(config: str) -> dict[str, float]:
@@ -69,8 +71,8 @@ def gather_curves() -> list[dict[str, str]]:
 
 
 def plot(rows: list[dict[str, str]]) -> None:
-    fig, axes = plt.subplots(1, len(PANELS), figsize=(4.2 * len(PANELS), 3.6), sharey=True)
-    for ax, (title, pairs) in zip(axes, PANELS, strict=True):
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True, sharey=True)
+    for ax, (title, pairs) in zip(axes.flat, PANELS, strict=True):
         for config in dict.fromkeys(name for pair in pairs for name in pair):
             runs: dict[str, list[tuple[int, float]]] = {}
             for r in rows:
@@ -87,16 +89,19 @@ def plot(rows: list[dict[str, str]]) -> None:
             mean = values.mean(axis=0)
             se = values.std(axis=0, ddof=1) / np.sqrt(len(runs)) if len(runs) > 1 else 0 * mean
             dashed = config in {pair[0] for pair in pairs}
+            colour = COLOURS[config.split("_")[0]][0 if dashed else 1]
             label = f"{config} (n={len(runs)})"
-            (line,) = ax.plot(steps, mean, "--" if dashed else "-", label=label)
-            ax.fill_between(steps, mean - se, mean + se, alpha=0.15, color=line.get_color())
+            ax.plot(steps, mean, "--" if dashed else "-", color=colour, label=label)
+            ax.fill_between(steps, mean - se, mean + se, alpha=0.15, color=colour)
         ax.set_title(title)
-        ax.set_xlabel("global steps")
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8, loc="lower right")
-    axes[0].set_ylabel("mean evaluation return (50 episodes)")
-    fig.suptitle("Catch-v0, the thesis's future work: 1M steps, 2 workers x 16 envs, seeds 1..4001")
+            ax.legend(fontsize=8, loc="upper left")
+    for ax in axes[1]:
+        ax.set_xlabel("global steps")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("mean evaluation return (50 episodes)")
+    fig.suptitle("Catch-v0, the thesis's future work: 1M steps, 2 workers x 16 envs, 5 seeds")
     fig.tight_layout()
     fig.savefig(HERE / "curves.png", dpi=110)
 
