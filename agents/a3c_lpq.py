@@ -319,6 +319,9 @@ class ActorCritic(nn.Module):
             active = torch.zeros(num_actions, slots)
             active[:, :per_action] = 1.0
             self.prototype_active = nn.Parameter(active.flatten())
+            # the last growth step done, in the checkpoint so that a resumed run neither
+            # skips nor repeats one
+            self.register_buffer("growth_round", torch.zeros((), dtype=torch.long))
         self.value_head = args.value_head
         if args.value_head == "prototypes":
             if args.value_prototypes < 1:
@@ -629,11 +632,9 @@ def maintain_prototypes(shared: Shared, args: Args, global_step: int) -> None:
     if not args.prototype_growth:
         return
     model, due = shared.model, global_step // args.growth_interval
-    if getattr(model, "growth_round", None) is None:  # started (or resumed) here
-        model.growth_round = due
-    if due <= model.growth_round:
+    if due <= int(model.growth_round):
         return
-    model.growth_round = due
+    model.growth_round.fill_(due)
     if hasattr(model, "set_progress"):
         model.set_progress(global_step / args.total_timesteps)
     rng = np.random.default_rng([args.seed, due])

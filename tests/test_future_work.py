@@ -258,6 +258,35 @@ def test_maintain_prototypes_grows_on_the_policys_states(script):
     assert frames.shape[0] == script.DATA_INIT_STEPS * script.DATA_INIT_ENVS
 
 
+def test_growth_rounds_survive_a_resume(script):
+    """The last growth step is in the network's state (so in the checkpoint): a run resumed
+    from a checkpoint taken past a boundary whose step has not run yet runs it at once, and one
+    resumed after a step does not repeat it."""
+    import types
+
+    from a3c_runtime.hogwild import SharedRMSprop
+
+    def shared_for(model):
+        params = list(model.parameters())
+        optimizer = SharedRMSprop(params, 0.99, 0.1, initial=0.0)
+        return types.SimpleNamespace(model=model, params=params, optimizer=optimizer)
+
+    torch.manual_seed(0)
+    model, args = growth_network(script, growth_ratio=1e-6, growth_interval=100, seed=2)
+    script.maintain_prototypes(shared_for(model), args, 0)
+    saved = {k: v.clone() for k, v in model.state_dict().items()}  # checkpoint at step 120
+    resumed, _ = growth_network(script, growth_ratio=1e-6, growth_interval=100, seed=2)
+    resumed.load_state_dict(saved)
+    script.maintain_prototypes(shared_for(resumed), args, 120)  # the step of round 1 runs now
+    assert int(resumed.growth_round) == 1
+    assert not torch.equal(resumed.prototypes.detach(), saved["prototypes"])
+    again, _ = growth_network(script, growth_ratio=1e-6, growth_interval=100, seed=2)
+    again.load_state_dict(resumed.state_dict())
+    before = again.prototypes.detach().clone()
+    script.maintain_prototypes(shared_for(again), args, 150)  # round 1 is done: nothing
+    torch.testing.assert_close(again.prototypes.detach(), before)
+
+
 # ---------------------------------------------------------------------------------------------
 # Online local weight sharing: --lws-centroid-source online
 # ---------------------------------------------------------------------------------------------
@@ -360,6 +389,16 @@ def test_prototype_growth_end_to_end(tmp_path, name):
     assert result.returncode == 0, result.stderr
     assert "prototype growth at step" in result.stdout
     assert evaluation_steps(tmp_path)[-1] >= 2000
+    # the checkpoint holds the last growth step; a resumed run goes on from the next one
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    done = int(checkpoint["model"]["growth_round"])
+    assert done == checkpoint["global_step"] // 500 >= 4
+    result = run_script(name, "--resume", str(tmp_path / "checkpoint.pt"), "--total-timesteps",
+                        "3000", timeout=120)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "prototype growth at step" in result.stdout
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert int(checkpoint["model"]["growth_round"]) == 6  # 2,500 and 3,000
 
 
 @pytest.mark.slow
