@@ -20,8 +20,9 @@ python: today's SyncVectorEnv of Gymnasium-wrapped envs), also before the worker
 
 --ceilings (ALE games) measures, in the same run, the two bounds of a learning agent on this
 machine: the emulator's (AtariVectorEnv with random actions, 16 envs on all cores, no learner)
-and the network's (a3c_ff on Catch-v0 at the first K and precision, where the env costs almost
-nothing), and the bound of the two sharing the cores, 1 / (1 / emulator + 1 / network).
+and the network's (a3c_ff on Catch-v0 at each K and precision measured, where the env costs
+almost nothing), and the bound of the two sharing the cores, 1 / (1 / emulator + 1 / network),
+which each setting is compared with at its own K and precision.
 With --rounds R the baseline and the scripts take turns R times and the means are reported, so
 that slow drifts of a shared machine's speed fall on all of them alike.
 
@@ -357,16 +358,18 @@ def main() -> None:
         print(f"{name}: {flops / 1e6:.1f} MFLOP per env step (acting forward + 1/t_max of the "
               f"rollout's forward and backward) -> bound {bounds[name]:,.0f} steps/s")  # fmt: skip
 
-    baselines, ceilings = [], []
+    baselines = []
+    ceilings = {kp: [] for kp in dict.fromkeys(s[:2] for s in settings)} if opts.ceilings else {}
     measured = {(name, *setting): [] for setting in settings for name in scripts}
     for _ in range(opts.rounds):
         if opts.ceilings:
             print(f"load average {os.getloadavg()[0]:.2f}; ceilings ...", flush=True)
-            k, precision = settings[0][:2]
             emulator = emulator_ceiling(opts.env, opts.seconds)
-            network = run_script(a3c, "Catch-v0", num_workers, opts.seconds, k, precision, 1)[0]
-            ceilings.append((emulator, network))
-            print(f"ceilings: emulator {emulator:,.0f} steps/s, network {network:,.0f} steps/s")
+            print(f"ceiling: emulator {emulator:,.0f} steps/s")
+            for k, precision in ceilings:
+                network = run_script(a3c, "Catch-v0", num_workers, opts.seconds, k, precision, 1)
+                ceilings[k, precision].append((emulator, network[0]))
+                print(f"ceiling: network at K={k} {precision} {network[0]:,.0f} steps/s")
         if not opts.no_baseline:  # every round, so that drifts of the host fall on it too
             print(f"load average {os.getloadavg()[0]:.2f}; baseline Hogwild loop ...", flush=True)
             baselines.append(run_baseline(a3c, opts.env, num_workers, opts.seconds, warmup=3.0))
@@ -415,17 +418,18 @@ def main() -> None:
             first = measured[("a3c_ff", *setting[:3], *env_settings[0])]
             ratio = np.mean(measured[("a3c_ff", *setting)], axis=0)[0] / np.mean(first, axis=0)[0]
             print(f"  {setting}: {ratio:.2f}x")
-    if ceilings:
-        emulator, network = np.mean(ceilings, axis=0)
+    for (k, precision), rounds in ceilings.items():
+        emulator, network = np.mean(rounds, axis=0)
         bound = 1 / (1 / emulator + 1 / network)
-        print(f"\nceilings, mean of {len(ceilings)} round(s): emulator {emulator:,.0f} steps/s "
+        print(f"\nceilings, mean of {len(rounds)} round(s): emulator {emulator:,.0f} steps/s "
               f"(AtariVectorEnv, 16 envs, {os.cpu_count()} threads, random actions), network "
-              f"{network:,.0f} (a3c_ff on Catch-v0, K={settings[0][0]} {settings[0][1]}); "
+              f"{network:,.0f} (a3c_ff on Catch-v0, K={k} {precision}); "
               f"the two sharing the cores: 1 / (1/{emulator:,.0f} + 1/{network:,.0f}) = "
               f"{bound:,.0f} steps/s")  # fmt: skip
         for setting in settings:
-            sps = np.mean(measured[("a3c_ff", *setting)], axis=0)[0]
-            print(f"  a3c_ff {setting}: {sps:,.0f} steps/s = {sps / bound:.0%} of that bound")
+            if setting[:2] == (k, precision):
+                sps = np.mean(measured[("a3c_ff", *setting)], axis=0)[0]
+                print(f"  a3c_ff {setting}: {sps:,.0f} steps/s = {sps / bound:.0%} of that bound")
 
 
 if __name__ == "__main__":

@@ -50,18 +50,24 @@ def test_a3c_throughput_compares_the_atari_backends_with_the_two_ceilings():
     pytest.importorskip("ale_py")
     result = run(
         "benchmarks/a3c_throughput.py", "--env", "BreakoutNoFrameskip-v4", "--seconds", "2",
-        "--no-baseline", "--envs-per-worker", "2", "--precision", "bf16", "--eval-episodes", "1",
-        "--env-backend", "native", "python", "--env-threads", "1", "2", "--ceilings",
+        "--no-baseline", "--envs-per-worker", "2", "1", "--precision", "bf16", "--eval-episodes",
+        "1", "--env-backend", "native", "python", "--env-threads", "1", "2", "--ceilings",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    rows = re.findall(r"^a3c_ff +2 +bf16 +on +(\S+) +([\d,]+) ", result.stdout, re.M)
-    assert [row[0] for row in rows] == ["native/1", "native/2", "python"]
+    for k in (2, 1):
+        rows = re.findall(rf"^a3c_ff +{k} +bf16 +on +(\S+) +([\d,]+) ", result.stdout, re.M)
+        assert [row[0] for row in rows] == ["native/1", "native/2", "python"]
     assert re.search(r"'python', 1\): [\d.]+x$", result.stdout, re.M)  # against native/1
-    match = re.search(r"emulator ([\d,]+) steps/s .* network ([\d,]+) .* = ([\d,]+) steps/s",
-                      result.stdout)  # fmt: skip
-    emulator, network, bound = (int(x.replace(",", "")) for x in match.groups())
-    assert abs(bound - 1 / (1 / emulator + 1 / network)) <= 2  # (printed rounded)
-    assert len(re.findall(r"% of that bound", result.stdout)) == 3
+    # one bound per K, its network ceiling measured at that K, each setting against its own
+    block = (r"emulator ([\d,]+) steps/s .* network ([\d,]+) \(a3c_ff on Catch-v0, K=(\d+) "
+             r".* = ([\d,]+) steps/s\n((?:  a3c_ff .*\n)+)")  # fmt: skip
+    blocks = re.findall(block, result.stdout)
+    assert [block[2] for block in blocks] == ["2", "1"]
+    for emulator, network, k, bound, lines in blocks:
+        emulator, network, bound = (int(x.replace(",", "")) for x in (emulator, network, bound))
+        assert abs(bound - 1 / (1 / emulator + 1 / network)) <= 2  # (printed rounded)
+        assert re.findall(r"a3c_ff \((\d+), ", lines) == [k] * 3
+        assert len(re.findall(r"% of that bound", lines)) == 3
 
 
 @pytest.mark.parametrize(
