@@ -112,6 +112,9 @@ class Args:
         None
     )
     """episodes per evaluation, sampling actions from pi"""
+    eval_greedy: bool = False
+    """evaluations (and --evaluate) play argmax pi instead of sampling from pi (the thesis
+    samples; greedy play tells how much of a score the policy's randomness costs)"""
     checkpoint_interval: Annotated[int | None, default_text("the evaluation interval")] = None
     """global steps between checkpoints; also at the end"""
     log_interval: float = 5.0

@@ -192,9 +192,10 @@ def test_corrupt_checkpoint_is_rejected(tmp_path):
     assert "corrupt" in result.stderr
 
 
-def test_evaluate_mode_prints_scores(short_run):
+@pytest.mark.parametrize("policy", [[], ["--eval-greedy"]])
+def test_evaluate_mode_prints_scores(short_run, policy):
     run_dir, _ = short_run
-    result = run("--evaluate", str(run_dir / "checkpoint.pt"), "--eval-episodes", "3")
+    result = run("--evaluate", str(run_dir / "checkpoint.pt"), "--eval-episodes", "3", *policy)
     assert result.returncode == 0, result.stderr
     assert len(re.findall(r"^episode \d: score [01]$", result.stdout, re.M)) == 3
     assert re.search(r"mean score [\d.]+ \+- [\d.]+ over 3 episodes", result.stdout)

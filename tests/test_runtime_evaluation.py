@@ -42,3 +42,36 @@ def test_evaluate_plays_a_handful_of_episodes_when_rendering():
         runtime.evaluation.evaluation_episodes(SimpleNamespace(eval_episodes=3, render="human"))
         == 3
     )
+
+
+class ActionCountingEnv:
+    """20 steps; the score is how often action 1 was taken."""
+
+    def reset(self, seed=None):
+        self.t, self.ones = 0, 0
+        return torch.zeros(4, 84, 84, dtype=torch.uint8).numpy(), {}
+
+    def step(self, action):
+        self.t, self.ones = self.t + 1, self.ones + (action == 1)
+        done = self.t == 20
+        obs = torch.zeros(4, 84, 84, dtype=torch.uint8).numpy()
+        return obs, 0.0, done, False, {"episode": {"r": float(self.ones), "l": self.t}}
+
+
+class FixedPolicy(torch.nn.Module):
+    """pi = (0.4, 0.6) in every state."""
+
+    def forward(self, obs):
+        log_probs = torch.tensor([0.4, 0.6]).log().expand(len(obs), 2)
+        return log_probs, torch.zeros(len(obs))
+
+
+def test_greedy_evaluation_plays_argmax_pi():
+    """--eval-greedy: action 1 (pi 0.6) at every step; sampling (seeded) takes action 0 about
+    40% of the time."""
+    torch.manual_seed(0)
+    envs = [ActionCountingEnv() for _ in range(4)]
+    greedy = runtime.play_episodes(FixedPolicy(), envs, greedy=True)
+    assert greedy.tolist() == [20.0] * 4
+    sampled = runtime.play_episodes(FixedPolicy(), envs)
+    assert 4 * 20 * 0.3 < sampled.sum() < 4 * 20 * 0.9

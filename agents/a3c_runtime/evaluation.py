@@ -30,10 +30,12 @@ def play_episodes(
     envs: list[gym.Env],
     seeds: list[int] | None = None,
     should_stop: Callable[[], bool] = lambda: False,
+    greedy: bool = False,
 ) -> np.ndarray:
     """Play one episode in each env in lock-step with one batched forward per step, sampling
-    actions from pi; returns the raw game scores. A recurrent network (initial_state) carries a
-    state row per running episode. Raises EvaluationInterrupted once should_stop() is true."""
+    actions from pi (greedy: argmax pi, the first of tied actions); returns the raw game
+    scores. A recurrent network (initial_state) carries a state row per running episode.
+    Raises EvaluationInterrupted once should_stop() is true."""
     observations = [env.reset(seed=None if seeds is None else seeds[i])[0] for i, env in
                     enumerate(envs)]  # fmt: skip
     scores = np.zeros(len(envs))
@@ -50,7 +52,10 @@ def play_episodes(
                 log_probs = log_probs[0]
             else:
                 log_probs, _ = model(batch)
-            chosen = torch.multinomial(log_probs.exp(), 1).squeeze(1).tolist()
+            if greedy:
+                chosen = log_probs.argmax(1).tolist()
+            else:
+                chosen = torch.multinomial(log_probs.exp(), 1).squeeze(1).tolist()
             still_running = []
             for i, action in zip(running, chosen, strict=True):
                 observations[i], _, terminated, truncated, info = envs[i].step(action)
@@ -89,12 +94,13 @@ def evaluate_network(
     args: Any,
     should_stop: Callable[[], bool] = lambda: False,
 ) -> dict:
-    """One evaluation of the thesis protocol: an episode per env, sampling from pi."""
+    """One evaluation of the thesis protocol: an episode per env, sampling from pi (argmax pi
+    with --eval-greedy)."""
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
         model.set_progress(global_step / args.total_timesteps)
     start = time.time()
     seeds = rng.integers(2**31, size=len(envs)).tolist()
-    scores = play_episodes(model, envs, seeds, should_stop)
+    scores = play_episodes(model, envs, seeds, should_stop, args.eval_greedy)
     return {"global_step": global_step, "scores": scores.tolist(), "seconds": time.time() - start}
 
 
@@ -180,7 +186,7 @@ def evaluate(agent: Any, args: Any) -> np.ndarray:
     try:
         for episode in range(episodes):
             seed = args.seed + episode
-            scores.append(play_episodes(model, [env], [seed])[0])
+            scores.append(play_episodes(model, [env], [seed], greedy=args.eval_greedy)[0])
             print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
     except KeyboardInterrupt:  # Ctrl-C: the episodes played so far still count
         print(f"stopped by SIGINT after {len(scores)} episodes", flush=True)
