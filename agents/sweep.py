@@ -37,8 +37,9 @@ the only one), as the thesis scores a run, and `score_all`, the mean of all of i
 the one at step 0 included (the thesis's "mean score on 20 evaluations" panel).
 
 The results table OUT/results.csv has a row per finished run: run_id, status (ok or failed),
-score, score_all, evaluations, final_step, wall_time_s, seed, one column per sampled flag, flags
-(the run's flags, ready to paste after the script) and error. A failed run (non-zero exit, no
+score, score_all, evaluations, final_step, wall_time_s (a resumed run's counts its earlier
+parts), seed, one column per sampled flag, flags (the run's flags, ready to paste after the
+script) and error. A failed run (non-zero exit, no
 evaluations, or stopped by a signal the sweep did not send) is recorded with its error and does
 not stop the sweep; its logs stay in OUT/runs/<run_id>/stdout.log and stderr.log. The table is
 rewritten to a temporary file, flushed to disk and renamed over the old one after each run, so it
@@ -258,6 +259,7 @@ def score_evaluations(text: str) -> dict:
         "score_all": sum(returns) / len(returns),
         "evaluations": len(returns),
         "final_step": rows[-1].get("global_step", ""),
+        "clock_s": float(rows[-1].get("wall_time_s") or 0.0),
     }
 
 
@@ -385,7 +387,10 @@ def result_row(run: Run, result: dict) -> dict | None:
         error = "exit code 0 but no evaluations.csv"
     else:
         try:
-            row.update(score_evaluations(result["evaluations_csv"]))
+            scores = score_evaluations(result["evaluations_csv"])
+            # a resumed run's own clock counts its earlier parts; this process saw only the last
+            row["wall_time_s"] = round(max(result["wall_time_s"], scores.pop("clock_s")), 2)
+            row.update(scores)
         except (ValueError, KeyError) as e:
             error = f"bad evaluations.csv: {e}"
     if error is not None:

@@ -210,6 +210,9 @@ def test_result_rows_for_each_way_a_run_ends():
     assert (ok["status"], ok["score"], ok["wall_time_s"], ok["error"]) == ("ok", 0.25, 1.23, "")
     assert ok["learning-rate"] == run.sampled["learning-rate"] and ok["seed"] == 1
     assert sweep.result_row(run, {**base, "interrupted": True}) is None
+    # a resumed run: this process saw its last part only, its evaluations' clock all of it
+    resumed = {**base, "evaluations_csv": "global_step,wall_time_s,mean_return\n9,80.5,0.5\n"}
+    assert sweep.result_row(run, resumed)["wall_time_s"] == 80.5
     crashed = sweep.result_row(
         run, {**base, "returncode": 1, "stderr_tail": "error: worker 0 failed:\nTraceback\nBoom"}
     )

@@ -178,7 +178,8 @@ def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Pa
         "global_step": global_step,
         "final_eval": last["mean_return"] if last else float("nan"),
         "final_eval_step": last["global_step"] if last else None,
-        "wall_time_s": time.time() - log.start,
+        "wall_time_s": log.wall_time(),  # the run's own clock, its parts before --resume included
+        "part_time_s": time.time() - log.start,
         "eval_time_s": log.eval_seconds,
         "sps": sps,
     }
@@ -187,9 +188,10 @@ def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Pa
         if last
         else "no evaluation"
     )
+    part_text = f", this part {format_seconds(summary['part_time_s'])}" if log.wall_offset else ""
     print(
         f"{outcome}: {eval_text} | wall time {format_seconds(summary['wall_time_s'])} "
-        f"(evaluations {format_seconds(log.eval_seconds)}) | SPS {sps:,.0f} | "
+        f"(evaluations {format_seconds(log.eval_seconds)}{part_text}) | SPS {sps:,.0f} | "
         f"{global_step:,} steps | {run_dir}",
         flush=True,
     )
