@@ -576,11 +576,15 @@ def main(argv: list[str] | None = None) -> int:
         print(list_figures(figures))
         return 0
     if options.dry_run:
+        printed = set()  # a line shared by figures is one sweep, run once
         for figure in figures:
             print(f"# {figure.id}: {figure.caption}")
             for line in figure.lines:
-                command = sweep_command(*run_as(figure, line), options, options.runs)
-                print(shlex.join(["python", *command]))
+                command = shlex.join(
+                    ["python", *sweep_command(*run_as(figure, line), options, options.runs)]
+                )
+                print(f"# (the sweep above) {command}" if command in printed else command)
+                printed.add(command)
             for command, _ in plot_commands(figure, options):
                 print(shlex.join(["python", *command]))
         return 0

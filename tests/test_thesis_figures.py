@@ -315,6 +315,19 @@ def test_dry_run_prints_the_sweeps_and_creates_nothing(tmp_path):
     assert "A3C FF=0.73" in plot and "GLPQ searing=0.81" in plot
 
 
+def test_dry_run_prints_a_shared_sweep_once():
+    """A line that several figures share is one sweep: the dry run prints its command once and
+    marks its repeats, so the printed commands are what a run of `all` would start."""
+    result = run_tool("--dry-run", "all", "--runs", "2", "--steps", "1000", "--out", "x")
+    assert result.returncode == 0, result.stderr
+    rows = result.stdout.splitlines()
+    sweeps = [row for row in rows if row.startswith("python agents/sweep.py")]
+    repeats = [row.removeprefix("# (the sweep above) ") for row in rows if "sweep above" in row]
+    assert repeats, "some figures share a line (A3C FF's is in most of them)"
+    assert len(sweeps) == len(set(sweeps))
+    assert set(repeats) <= set(sweeps)
+
+
 def test_samples_come_after_the_learning_rate(tmp_path):
     """Run i of every line draws the first reproduction's learning rate and seed for run i,
     joint samples (A.1's c_g) included: the learning rate is sampled first."""
