@@ -101,7 +101,7 @@ def plot(rows: list[dict[str, str]]) -> None:
         ax.set_xlabel("global steps")
     for ax in axes[:, 0]:
         ax.set_ylabel("mean evaluation return (50 episodes)")
-    fig.suptitle("Catch-v0, the thesis's future work: 1M steps, 2 workers x 16 envs, 5 seeds")
+    fig.suptitle("Catch-v0, the thesis's future work: 1M steps, 2 workers x 16 envs (n: runs)")
     fig.tight_layout()
     fig.savefig(HERE / "curves.png", dpi=110)
 
