@@ -6,6 +6,7 @@
 # Resumable: each sweep skips the runs already in its results.csv.
 #   bash results/future_work_catch/run.sh            # every configuration
 #   bash results/future_work_catch/run.sh glpq_data  # some of them
+#   RUNS=15 bash results/future_work_catch/run.sh lpq lpq_growth  # more runs (as committed)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 OUT=results/future_work_catch

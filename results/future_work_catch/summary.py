@@ -32,6 +32,7 @@ PANELS = [
 ]
 CONFIGS = list(dict.fromkeys(name for _, pairs in PANELS for pair in pairs for name in pair))
 # a script's thesis version dashed, its idea solid, in the same colour in every panel
+FALL_BACK = 0.1  # print_fall_back: a score this far below the run's best evaluation
 COLOURS = {"lpq": ("C0", "C1"), "glpq": ("C2", "C3"), "lws": ("C4", "C5")}
 
 
@@ -119,7 +120,28 @@ def main() -> None:
         listed = ", ".join(f"{v:.3f}" for v in values)
         mean = statistics.mean(values)
         print(f"| {config} | {len(values)} | {mean:.3f} +- {se:.3f} | {listed} |")
-    plot(gather_curves())
+    rows = gather_curves()
+    print_fall_back(rows)
+    plot(rows)
+
+
+def print_fall_back(rows: list[dict[str, str]]) -> None:
+    """Per configuration, how far its runs fall back from their best evaluation: a run's best
+    (after step 0) against its score (the mean of its final 5 evaluations)."""
+    print()
+    print(f"| configuration | runs | best evaluation, mean over runs | runs whose score is more "
+          f"than {FALL_BACK} below their best |")  # fmt: skip
+    print("|---|---:|---:|---:|")
+    for config in CONFIGS:
+        runs: dict[str, list[float]] = {}
+        for r in rows:
+            if r["config"] == config and r["global_step"] != "0":
+                runs.setdefault(r["run_id"], []).append(float(r["mean_return"]))
+        if not runs:
+            continue
+        best = [max(v) for v in runs.values()]
+        fell = sum(max(v) - statistics.mean(v[-5:]) > FALL_BACK for v in runs.values())
+        print(f"| {config} | {len(runs)} | {statistics.mean(best):.3f} | {fell} |")
 
 
 if __name__ == "__main__":
