@@ -39,11 +39,10 @@ the one at step 0 included (the thesis's "mean score on 20 evaluations" panel).
 The results table OUT/results.csv has a row per finished run: run_id, status (ok or failed),
 score, score_all, evaluations, final_step, wall_time_s (a resumed run's counts its earlier
 parts), seed, one column per sampled flag, flags (the run's flags, ready to paste after the
-script) and error. A failed run (non-zero exit, no
-evaluations, or stopped by a signal the sweep did not send) is recorded with its error and does
-not stop the sweep; its logs stay in OUT/runs/<run_id>/stdout.log and stderr.log. The table is
-rewritten to a temporary file, flushed to disk and renamed over the old one after each run, so it
-is always whole.
+script) and error. A failed run (non-zero exit, no evaluations, or stopped by a signal the sweep
+did not send) is recorded with its error and does not stop the sweep; its logs stay in
+OUT/runs/<run_id>/stdout.log and stderr.log. The table is rewritten to a temporary file, flushed
+to disk and renamed over the old one after each run, so it is always whole.
 
 Resuming. OUT/sweep.json holds the sweep's configuration (script name, samples, fixed flags,
 step budget, seed). Started again with the same OUT, the sweep refuses a different configuration
