@@ -1,19 +1,24 @@
-"""The run's training scalars by 1M steps, from its TensorBoard events (tensorboard/):
+"""A run's training scalars by 1M steps, from its TensorBoard events (<folder>/tensorboard/;
+by default this script's folder, seed 1's run):
 
     python results/breakout_a3c_ff/native_10M/training_scalars.py > \\
         results/breakout_a3c_ff/native_10M/training_scalars.txt
+    python results/breakout_a3c_ff/native_10M/training_scalars.py \\
+        results/breakout_a3c_ff/native_10M_seed2 > \\
+        results/breakout_a3c_ff/native_10M_seed2/training_scalars.txt
 
 Each column is the mean of the logged values in the 500k steps up to that step. The entropy is
 logged as a sum over the update's rollout (K x t_max = 16 x 5 = 80 states); it is also shown per
 state, against ln 4 = 1.386 for Breakout's 4 actions.
 """
 
+import sys
 from pathlib import Path
 
 import numpy as np
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-FOLDER = Path(__file__).with_name("tensorboard")
+FOLDER = (Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).parent) / "tensorboard"
 ROLLOUT_STATES = 16 * 5
 MARKS = [m * 1_000_000 for m in (0.5, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)]
 
