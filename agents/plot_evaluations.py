@@ -99,10 +99,17 @@ def plot(paths: list[Path], labels: list[str], output: Path, threshold: float | 
         top.set_xlabel(f"wall time of {labels[0]} (s)")
     ax.set_xlabel("global steps")
     ax.set_ylabel("evaluation mean return")
-    ax.legend(loc="best")
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    if wall_time_panel:
+        # one legend below both panels, where it cannot cover a curve
+        columns = len(paths) if len(paths) <= 3 else -(-len(paths) // 2)
+        rows = -(-len(paths) // columns)
+        fig.legend(loc="lower center", ncol=columns, fontsize=9, frameon=False)
+        fig.tight_layout(rect=(0, 0.07 * rows, 1, 1))
+    else:
+        ax.legend(loc="best")
+        fig.tight_layout()
     fig.savefig(output, dpi=120)
     print(f"wrote {output}")
 
