@@ -208,11 +208,16 @@ def unit_vectors(x: torch.Tensor) -> torch.Tensor:
     return torch.where(nonzero, x / torch.where(nonzero, norm, 1.0), 0.0)
 
 
+# float32 whatever --precision: under bf16 autocast the expansion |h|^2 - 2 h.w + |w|^2 below
+# cancels to noise (3 significant digits), and a distance of 0.5 comes out as 0 or 30
+@torch.autocast("cpu", enabled=False)
 def prototype_distances(
     features: torch.Tensor, prototypes: torch.Tensor, distance: str
 ) -> torch.Tensor:
-    """d(h, w) of thesis 7.2.1 between each feature row (B, D) and prototype (M, D) -> (B, M).
-    Cosine and Pearson give 1 (orthogonal) where a vector is zero (or constant, for Pearson)."""
+    """d(h, w) of thesis 7.2.1 between each feature row (B, D) and prototype (M, D) -> (B, M),
+    in float32. Cosine and Pearson give 1 (orthogonal) where a vector is zero (or constant, for
+    Pearson)."""
+    features, prototypes = features.float(), prototypes.float()
     if distance in ("cosine", "pearson"):
         if distance == "pearson":  # the cosine distance of the mean-centred vectors
             features = features - features.mean(-1, keepdim=True)

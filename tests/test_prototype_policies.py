@@ -77,6 +77,23 @@ def test_zero_and_constant_vectors_give_finite_distances_and_gradients(lpq, dist
     assert torch.isfinite(features.grad).all() and torch.isfinite(prototypes.grad).all()
 
 
+@pytest.mark.parametrize("distance", ["squared-euclidean", "euclidean", "manhattan", "cosine"])
+def test_distances_stay_float32_under_bf16_autocast(lpq, glpq, distance):
+    """--precision bf16 / bf16-learn run the network under bf16 autocast; the distances must not
+    follow: |h|^2 - 2 h.w + |w|^2 of features near a prototype cancels to noise in bf16 (a
+    distance of 0.5 came out as 0 or 38 before the fix)."""
+    torch.manual_seed(0)
+    features = 3 * torch.randn(4, 256) + 5
+    prototypes = features.repeat_interleave(3, 0) + 0.05 * torch.randn(12, 256)
+    for module in (lpq, glpq):
+        expected = module.prototype_distances(features, prototypes, distance)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            got = module.prototype_distances(features.bfloat16(), prototypes, distance)
+        assert got.dtype == torch.float32
+        # the features' own bf16 rounding (8 bits) is all that differs
+        torch.testing.assert_close(got, expected, rtol=0.02, atol=0.5)
+
+
 def test_euclidean_gradient_is_finite_at_zero_distance(lpq):
     h = torch.tensor([[1.0, 2.0]], requires_grad=True)
     d = lpq.prototype_distances(h, h.detach().clone(), "euclidean")
