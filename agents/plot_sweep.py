@@ -29,6 +29,10 @@ value and the mean over all evaluations, ready for a README.
 Reference values (`--reference LABEL=VALUE`, repeatable), e.g. the thesis's bar values
 (`--reference "A3C FF=0.73"`), are drawn as a hatched bar beside that configuration's bar and
 added to the table as a column "reference".
+
+A sweep that samples a second flag jointly with the first (`--y grad-clip`, the thesis's
+Figure A.1) is drawn as a map instead: one panel per table, each run a point at
+(log10 x, log10 y) coloured by its score (final 5), and the table printed lists the runs.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ import argparse
 import csv
 import math
 import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -105,6 +110,53 @@ def read_table(path: str, x_column: str) -> dict:
         "runs": len(rows),
         "ok": len(ok),
     }
+
+
+def read_joint(path: str, x_column: str, y_column: str) -> dict:
+    """A sweep's ok runs for a map: x and y (the two sampled columns' values) and score."""
+    x, y = read_table(path, x_column), read_table(path, y_column)
+    return {"x": x["values"], "y": y["values"], "score": x["score"], "runs": x["runs"]}
+
+
+def plot_joint(
+    tables: list[dict], labels: list[str], out: str, x_label: str, y_label: str, title: str | None
+) -> None:
+    """Draw each table's runs at (log10 x, log10 y), coloured by score, one panel per table."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scores = np.concatenate([t["score"] for t in tables])
+    high = 1.0 if scores.size == 0 or scores.max() <= 1.0 else float(scores.max())
+    low = min(0.0, float(scores.min())) if scores.size else 0.0
+    with plt.style.context("ggplot"):
+        fig, axes = plt.subplots(
+            1, len(tables), figsize=(8 * len(tables) + 1, 7), squeeze=False, constrained_layout=True
+        )
+        for ax, table, label in zip(axes[0], tables, labels, strict=True):
+            points = ax.scatter(
+                np.log10(table["x"]), np.log10(table["y"]), c=table["score"], cmap="viridis",
+                vmin=low, vmax=high, s=70, edgecolors="black", linewidths=0.5,
+            )  # fmt: skip
+            ax.set_xlabel(f"log10({x_label})")
+            ax.set_ylabel(f"log10({y_label})")
+            ax.set_title(f"{label}: {len(table['score'])} runs", fontsize=11)
+        fig.colorbar(points, ax=axes[0].tolist(), label="Mean score, final 5 evaluations")
+        if title:
+            fig.suptitle(textwrap.fill(title, 50 + 60 * (len(tables) - 1)), fontsize=12)
+        fig.savefig(out, dpi=100)
+        plt.close(fig)
+
+
+def joint_table(tables: list[dict], labels: list[str], x_name: str, y_name: str) -> str:
+    """A markdown table of every ok run of each table, by x: x, y and its score."""
+    lines = [f"| configuration | {x_name} | {y_name} | score (final 5) |", "|---|---|---|---|"]
+    for table, label in zip(tables, labels, strict=True):
+        for i in np.argsort(table["x"], kind="stable"):
+            x, y, score = table["x"][i], table["y"][i], table["score"][i]
+            lines.append(f"| {label} | {x:.3g} | {y:.3g} | {score:.3f} |")
+    return "\n".join(lines)
 
 
 def bar_value(values: np.ndarray, scores: np.ndarray, bar_range: tuple[float, float]) -> dict:
@@ -242,6 +294,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--x", default="learning-rate", help="the swept column (x axis)")
     parser.add_argument("--linear-x", action="store_true", help="plot x itself, not log10(x)")
     parser.add_argument(
+        "--y",
+        default=None,
+        help="a second column sampled jointly with x: draw a map of the runs (log10 x against "
+        "log10 y, coloured by score) instead of curves",
+    )
+    parser.add_argument(
         "--xrange",
         nargs=2,
         type=float,
@@ -285,11 +343,19 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
+    x_name = "lr" if args.x in ("learning-rate", "learning_rate") else args.x
     try:
+        if args.y is not None:
+            joint = [read_joint(t, args.x, args.y) for t in args.tables]
         tables = [read_table(t, args.x) for t in args.tables]
     except (OSError, ValueError, KeyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if args.y is not None:
+        plot_joint(joint, labels, args.out, args.x, args.y, args.title)
+        print(joint_table(joint, labels, x_name, args.y))
+        print(f"wrote {args.out}")
+        return 0
     log_x = not args.linear_x
     values = np.concatenate([t["values"] for t in tables])
     if args.xrange:
@@ -311,7 +377,6 @@ def main(argv: list[str] | None = None) -> int:
         log_x=log_x,
         references=references,
     )
-    x_name = "lr" if args.x in ("learning-rate", "learning_rate") else args.x
     print(summary_table(tables, labels, tuple(args.bar_range), references, x_name))
     print(f"wrote {args.out}")
     return 0

@@ -93,11 +93,13 @@ class Line:
 
 @dataclass(frozen=True)
 class Plot:
-    """One plot of a figure: the score against a swept flag."""
+    """One plot of a figure: the score against a swept flag, or with y a map of the runs over
+    two flags sampled jointly."""
 
     x: str = "learning-rate"
     bar_range: tuple[float, float] | None = None  # None: plot_sweep.py's, [1e-5, 1e-2]
     suffix: str = ""  # OUT/FIG/FIG{suffix}.png
+    y: str | None = None
 
 
 @dataclass(frozen=True)
@@ -135,7 +137,7 @@ KEYS = {
                "line": list, "plot?": list},
     "line": {"slug": str, "label": str, "script": str, "flags": str, "source": str,
              "samples?": list, "approximation?": str, "same_as?": str},
-    "plot": {"x": str, "bar_range?": list},
+    "plot": {"x": str, "y?": str, "bar_range?": list},
 }  # fmt: skip
 TYPES = {str: "a string", list: "a list", dict: "a table"}
 FRAGMENT = re.compile(r"\{(\w+)\}")  # {NAME} in a line's flags: NAME of the [flags] table
@@ -200,12 +202,17 @@ def read_figure(entry: object, file: str, index: int, fragments: dict[str, str])
     plots = [Plot()]  # every figure's plot against the learning rate, then one per [[plot]]
     for i, entry in enumerate(figure.get("plot", []), 1):
         plot, at = table(entry, "plot", f"{where}, plot {i}"), f"{where}, plot {i}"
-        if not all(plot["x"] in line.sample_names() for line in lines):
-            raise DataError(f"{at}: x is {plot['x']!r}, which not every line samples")
+        for axis in ("x", "y"):
+            name = plot.get(axis)
+            sampled = name == "learning-rate" or all(name in line.sample_names() for line in lines)
+            if name is not None and not sampled:
+                raise DataError(f"{at}: {axis} is {name!r}, which not every line samples")
         bars = plot.get("bar_range")
         if bars is not None and (len(bars) != 2 or any(type(v) not in (int, float) for v in bars)):
             raise DataError(f"{at}: bar_range must be [LOW, HIGH], got {bars!r}")
-        plots.append(Plot(plot["x"], bars and (float(bars[0]), float(bars[1])), f"-{plot['x']}"))
+        suffix = f"-{plot['x']}" + (f"-{plot['y']}" if "y" in plot else "")
+        bar_range = bars and (float(bars[0]), float(bars[1]))
+        plots.append(Plot(plot["x"], bar_range, suffix, plot.get("y")))
     texts = {key: figure.get(key, "") for key in ("id", "caption", "thesis", "note")}
     numbers = tuple((label, float(value)) for label, value in numbers)
     return Figure(**texts, lines=tuple(lines), numbers=numbers, plots=tuple(plots))
@@ -341,6 +348,8 @@ def plot_commands(figure: Figure, options: argparse.Namespace) -> list[tuple[lis
         command += ["--out", str(png), "--title", title]
         if plot.x != "learning-rate":
             command += ["--x", plot.x]
+        if plot.y is not None:
+            command += ["--y", plot.y]
         if plot.bar_range is not None:
             command += ["--bar-range", *(f"{v:g}" for v in plot.bar_range)]
         for label, value in figure.numbers:

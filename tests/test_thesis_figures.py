@@ -487,7 +487,8 @@ def test_plot_sweep_rejects_a_bad_reference(tmp_path, reference, capsys):
 
 
 def test_a_figure_with_a_joint_sample_is_drawn_against_each(tmp_path, monkeypatch):
-    """Figure A.1 samples c_g with the learning rate: one plot against each."""
+    """Figure A.1 samples c_g with the learning rate: one plot against each, and the thesis's
+    map of the runs over both."""
     real_execute = figures.execute
 
     def execute(command, capture=False):
@@ -501,7 +502,23 @@ def test_a_figure_with_a_joint_sample_is_drawn_against_each(tmp_path, monkeypatc
     monkeypatch.setattr(figures, "execute", execute)
     out = tmp_path / "out"
     assert figures.main(["A.1", "--runs", "4", "--steps", "1000", "--out", str(out)]) == 0
-    for name in ("figA.1.png", "figA.1-grad-clip.png"):
+    for name in ("figA.1.png", "figA.1-grad-clip.png", "figA.1-learning-rate-grad-clip.png"):
         assert (out / "figA.1" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     summary = (out / "figA.1" / "figA.1.md").read_text()
     assert "grad-clip in [0.5, 40]" in summary and "lr in [1e-05, 0.01]" in summary
+    # the map's table: every run, by learning rate, with its sampled c_g and its score
+    rows = [row for row in summary.splitlines() if row.startswith("| Global norm clipping | ")]
+    runs = [row for row in rows if "/" not in row.split("|")[2]]  # not the bars' "4/4" rows
+    assert len(runs) == 4
+    parsed = [plot_sweep.read_joint(str(out / "figA.1" / "global-norm" / "results.csv"),
+                                    "learning-rate", "grad-clip")]  # fmt: skip
+    lrs = sorted(parsed[0]["x"])
+    assert [float(row.split("|")[2]) for row in runs] == pytest.approx(lrs, rel=1e-2)
+
+
+def test_plot_sweep_map_needs_both_columns(tmp_path, capsys):
+    fake_table(tmp_path / "a", 3, ["learning-rate=loguniform:1e-5:1e-2"])
+    argv = [str(tmp_path / "a" / "results.csv"), "--y", "grad-clip"]
+    assert plot_sweep.main([*argv, "--out", str(tmp_path / "x.png")]) == 2
+    assert "no column 'grad-clip'" in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
