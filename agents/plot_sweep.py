@@ -118,10 +118,24 @@ def read_joint(path: str, x_column: str, y_column: str) -> dict:
     return {"x": x["values"], "y": y["values"], "score": x["score"], "runs": x["runs"]}
 
 
+def decades(values: np.ndarray) -> tuple[float, float]:
+    """The whole decades around positive values, in log10: (-6, -2) for 3e-6 ... 8e-3."""
+    if values.size == 0:
+        return -6.0, -2.0
+    return math.floor(np.log10(values.min())), math.ceil(np.log10(values.max()))
+
+
 def plot_joint(
-    tables: list[dict], labels: list[str], out: str, x_label: str, y_label: str, title: str | None
+    tables: list[dict],
+    labels: list[str],
+    out: str,
+    x_label: str,
+    y_label: str,
+    title: str | None,
+    x_range: tuple[float, float] | None = None,
 ) -> None:
-    """Draw each table's runs at (log10 x, log10 y), coloured by score, one panel per table."""
+    """Draw each table's runs at (log10 x, log10 y), coloured by score, one panel per table,
+    over whole decades of x (or x_range, in log10) and of y."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -139,6 +153,8 @@ def plot_joint(
                 np.log10(table["x"]), np.log10(table["y"]), c=table["score"], cmap="viridis",
                 vmin=low, vmax=high, s=70, edgecolors="black", linewidths=0.5,
             )  # fmt: skip
+            ax.set_xlim(*(x_range or decades(np.concatenate([t["x"] for t in tables]))))
+            ax.set_ylim(*decades(np.concatenate([t["y"] for t in tables])))
             ax.set_xlabel(f"log10({x_label})")
             ax.set_ylabel(f"log10({y_label})")
             ax.set_title(f"{label}: {len(table['score'])} runs", fontsize=11)
@@ -352,7 +368,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     if args.y is not None:
-        plot_joint(joint, labels, args.out, args.x, args.y, args.title)
+        x_range = tuple(args.xrange) if args.xrange else None
+        plot_joint(joint, labels, args.out, args.x, args.y, args.title, x_range)
         print(joint_table(joint, labels, x_name, args.y))
         print(f"wrote {args.out}")
         return 0
@@ -363,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
     elif values.size == 0:
         x_range = (-6.0, -2.0) if log_x else (0.0, 1.0)
     elif log_x:  # whole decades around the data: -6 -2 for the thesis's sweeps
-        x_range = (math.floor(np.log10(values.min())), math.ceil(np.log10(values.max())))
+        x_range = decades(values)
     else:
         x_range = (float(values.min()), float(values.max()))
     plot(
