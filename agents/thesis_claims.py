@@ -27,6 +27,7 @@ import argparse
 import csv
 import math
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -119,9 +120,22 @@ def link(folder: str) -> str:
     return f"../{folder}/results.csv"
 
 
+VERDICTS = ("reproduced", "contradicted", "inconclusive", "not run yet")  # the tally's order
+
+
+def tally(verdicts: list[str]) -> str:
+    """How many rows have each verdict: "**At a glance**: 3 rows: 2 reproduced, 1 ..."."""
+    counts = Counter(call.partition(":")[0] for call in verdicts)
+    heads = [*VERDICTS, *sorted(set(counts) - set(VERDICTS))]
+    parts = ", ".join(f"{counts[head]} {head}" for head in heads if counts[head])
+    return f"**At a glance**: {len(verdicts)} rows: {parts}."
+
+
 def render(claims: dict) -> str:
     """The whole page, in Markdown."""
-    out, missing = [claims["intro"].strip(), ""], {}
+    rows = [evidence(claim) for section in claims["section"] for claim in section["claim"]]
+    out, missing = [claims["intro"].strip(), "", tally([call for *_, call in rows]), ""], {}
+    rows = iter(rows)
     for section in claims["section"]:
         out += [f"## {section['title']}", ""]
         if "text" in section:
@@ -131,7 +145,7 @@ def render(claims: dict) -> str:
             "|---|---|---|---|---|---|---|",
         ]
         for claim in section["claim"]:
-            ours, effect, call = evidence(claim)
+            ours, effect, call = next(rows)
             if call == "not run yet" and "command" in claim:
                 missing.setdefault(claim["command"], []).append(claim["where"])
             head, _, rest = call.partition(":")

@@ -106,3 +106,16 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
         {"title": "S", "claim": [{**claim, "line": "missing", "claim": "c", "where": "Fig 1",
                                   "form": "as run", "thesis": "t"}]}]}  # fmt: skip
     assert "- Fig 1: `make b`" in claims.render(data)  # the command, in the list of what is missing
+
+
+def test_the_page_opens_with_a_tally_of_its_verdicts():
+    calls = ["inconclusive: about 9 runs", "reproduced", "no claim to test", "reproduced"]
+    assert claims.tally(calls) == (
+        "**At a glance**: 4 rows: 2 reproduced, 1 inconclusive, 1 no claim to test."
+    )
+    page = (ROOT / "docs" / "claims.md").read_text()
+    cells = [row.split(" | ")[-1] for row in page.splitlines() if row.startswith("| ")]
+    heads = [cell.strip("| ").split("**")[1] for cell in cells if cell.startswith("**")]
+    assert f"**At a glance**: {len(heads)} rows: " in page
+    for head in set(heads):
+        assert f"{heads.count(head)} {head}" in page.split("**At a glance**")[1].split("\n")[0]
