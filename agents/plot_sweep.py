@@ -363,7 +363,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.y is not None:
             joint = [read_joint(t, args.x, args.y) for t in args.tables]
-        tables = [read_table(t, args.x) for t in args.tables]
+        else:
+            tables = [read_table(t, args.x) for t in args.tables]
     except (OSError, ValueError, KeyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -135,7 +135,7 @@ def render(claims: dict) -> str:
     """The whole page, in Markdown."""
     rows = [evidence(claim) for section in claims["section"] for claim in section["claim"]]
     out, missing = [claims["intro"].strip(), "", tally([call for *_, call in rows]), ""], {}
-    rows = iter(rows)
+    next_row = iter(rows)
     for section in claims["section"]:
         out += [f"## {section['title']}", ""]
         if "text" in section:
@@ -145,7 +145,7 @@ def render(claims: dict) -> str:
             "|---|---|---|---|---|---|---|",
         ]
         for claim in section["claim"]:
-            ours, effect, call = next(rows)
+            ours, effect, call = next(next_row)
             if call == "not run yet" and "command" in claim:
                 missing.setdefault(claim["command"], []).append(claim["where"])
             head, _, rest = call.partition(":")
