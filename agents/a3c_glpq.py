@@ -1,8 +1,6 @@
-# A3C GLPQ: A3C FF with a generalized learning policy quantization policy head.
-# Thesis "Deep Reinforcement Learning of Video Games", chapter 7 (eqs. 7.6, 7.7, 7.10, 7.11, the
-# temperature of 7.2.4) and appendix C; a copy of a3c_ff.py in which only the network, its flags
-# and the worker's lines marked "GLPQ:" (training progress for the tau schedule, the 1/tau loss)
-# differ; the runtime calls the network's set_progress before evaluation episodes.
+# A3C GLPQ: A3C FF with a generalized learning policy quantization policy head. Thesis chapter 7
+# (eqs. 7.6, 7.7, 7.10, 7.11, the temperature of 7.2.4) and appendix C; only the network, its flags
+# and the worker's "GLPQ:" lines (the tau schedule's progress, the 1/tau loss) differ from a3c_ff.
 #
 # This file is the algorithm: its flags, the env, the network, the loss and the actor-learner
 # loop. The run machinery every script shares is the a3c_runtime package (agents/a3c_runtime/):
@@ -21,7 +19,7 @@ import torch.nn.functional as F
 from a3c_runtime import (
     Agent,
     Shared,
-    UsageError,  # noqa: F401  (the variants' networks raise it for bad flags)
+    UsageError,
     annealed_lr,
     autocast_contexts,
     clip_gradients,
@@ -29,7 +27,6 @@ from a3c_runtime import (
     default_text,
     process_seed,
     replay_activations,
-    resolve_defaults,  # noqa: F401  (tools fill an Args's defaults through the script)
     run,
     seed_everything,
 )
@@ -110,41 +107,17 @@ class Args:
     # Prototype policy (thesis chapter 7: GLPQ, eqs. 7.6, 7.7, 7.10, 7.11, section 7.2.4)
     prototypes_per_action: int = 16
     """prototypes per action in the 256-d feature space"""
-    distance: Literal["squared-euclidean", "euclidean", "manhattan", "cosine", "pearson"] = (
-        "squared-euclidean"
-    )
+    distance: Literal["squared-euclidean", "euclidean", "manhattan", "cosine",
+                      "pearson"] = "squared-euclidean"  # fmt: skip
     """the distance d(h, w) (thesis 7.2.1); not the inverse squared Euclidean, which is negative
     and would turn mu = (d_- - d) / (d_- + d) upside down"""
     competition_size: Annotated[int | None, default_text("all")] = None
     """k: only the k nearest prototypes of each action compete (eq. 7.11)"""
-    prototype_init: Literal["uniform", "uniform-clipped", "data"] = "uniform"
+    prototype_init: Literal["uniform", "uniform-clipped"] = "uniform"
     """prototypes U(-b, b); uniform-clipped: then negatives set to 0, as the ReLU features are
-    (our reading of the thesis's unexplained 'zero clipping', figure C.1); data (thesis chapter
-    8's future work): each prototype on a distinct feature vector h of the initial network, from
-    the states of a short random-policy rollout, so that distances start at the features' scale"""
+    (our reading of the thesis's unexplained 'zero clipping', figure C.1)"""
     prototype_init_bound: float = 1 / 16
     """the bound b of the prototype initialisation"""
-    prototype_growth: bool = False
-    """dynamic prototypes (chapter 8's future work): every --growth-interval global steps, on the
-    states of a short rollout of the current policy, each action may gain a prototype on its
-    farthest state (when that is --growth-ratio times the mean distance away) and lose one
-    that is no state's nearest; in --max-prototypes-per-action slots (grow_and_prune)"""
-    max_prototypes_per_action: Annotated[
-        int | None, default_text("2 x --prototypes-per-action")
-    ] = None
-    """the slots per action of --prototype-growth; --prototypes-per-action of them start active"""
-    growth_interval: int = 50_000
-    """global steps between --prototype-growth steps"""
-    growth_ratio: float = 2.0
-    """--prototype-growth adds a prototype for action a when a state that chose a is this many
-    times the mean distance (over all states, to their action's nearest prototype) away from
-    a's nearest prototype"""
-    value_head: Literal["linear", "prototypes"] = "linear"
-    """V(s): linear in h (the thesis's); prototypes (chapter 8's future work): learning vector
-    regression, V = sum_j softmax_j(-beta d(h, u_j)) v_j over --value-prototypes prototypes u_j
-    with values v_j and a trainable kernel width beta, trained by the value loss"""
-    value_prototypes: int = 16
-    """the value prototypes u_j of --value-head prototypes"""
     mu_form: Literal["text", "code"] = "text"
     """text: each prototype's logit is tau * mu_i, mu_i = (d_- - d_i) / (d_- + d_i) (eq. 7.7 as
     written, bounded by Theorem 1); code: tau * (d_- / (d_i + d_-) - d_i), what the thesis's runs
@@ -153,9 +126,8 @@ class Args:
     """tau: fixed at --tau (1 is vanilla GLPQ); tau = 0.5 ln(p (n - 1) / (1 - p)) with p linear
     in the global step and n = |A| (cold, eq. 7.17) or n = k |A| (hot, eq. 7.18); searing is hot
     with p from 0.95 to 0.999; trainable starts at --tau"""
-    tau: Annotated[float | None, default_text("1 fixed; trainable: the cold tau at --p-start")] = (
-        None
-    )
+    tau: Annotated[float | None,
+                   default_text("1 fixed; trainable: cold tau at --p-start")] = None  # fmt: skip
     """the fixed tau, or the initial trainable tau (the cold tau at --p-start is
     0.5 ln(0.9 (|A| - 1) / 0.1) = 1.445 on Catch, where the thesis's runs started it)"""
     tau_parametrization: Literal["log", "plain"] = "log"
@@ -223,9 +195,7 @@ def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
 # ----------------------------------------------------------------------------------------------
 # args a checkpoint's network depends on
 NETWORK_ARGS = ("env", "activation", "scale_obs", "prototypes_per_action", "distance",
-                "competition_size", "value_head", "value_prototypes", "prototype_growth",
-                "max_prototypes_per_action", "mu_form", "temperature",
-                "tau_parametrization")  # fmt: skip
+                "competition_size", "mu_form", "temperature", "tau_parametrization")  # fmt: skip
 NORM_EPS = 1e-8  # below this norm a vector counts as zero (cosine and Pearson distances)
 SQRT_EPS = 1e-12  # the Euclidean distance is sqrt(max(squared, SQRT_EPS)): no infinite gradient
 MU_EPS = 1e-12  # in mu's denominator: finite where d_- = d = 0
@@ -298,41 +268,27 @@ def nearest_other_action(distances: torch.Tensor) -> torch.Tensor:
 
 
 def glpq_log_policy(
-    distances: torch.Tensor,
-    tau: torch.Tensor | float,
-    k: int,
-    mu_form: str = "text",
-    active: torch.Tensor | None = None,
+    distances: torch.Tensor, tau: torch.Tensor | float, k: int, mu_form: str = "text"
 ) -> torch.Tensor:
     """log pi(a) of eq. 7.10 from the distances (B, A, P): log sum over a's competing prototypes
     of exp(tau mu) minus log sum over all competing prototypes, stable through logsumexp; the
     competition (eq. 7.11) is each action's k nearest prototypes. mu_form "code" puts the
-    thesis's as-run scores (as_run_scores) in place of mu. active (A, P), with
-    --prototype-growth: the free slots neither compete nor count in d_-."""
-    masked = distances if active is None else distances.masked_fill(~active, math.inf)
-    d_minus = nearest_other_action(masked)
+    thesis's as-run scores (as_run_scores) in place of mu."""
     score = relative_distances if mu_form == "text" else as_run_scores
-    scores = score(distances, d_minus)  # finite for the free slots too: they are masked below
-    competing = None if active is None else active.expand_as(distances)
+    scores = score(distances, nearest_other_action(distances))
     if k < distances.shape[-1]:
-        nearest = masked.topk(k, dim=-1, largest=False, sorted=False).indices
+        nearest = distances.topk(k, dim=-1, largest=False, sorted=False).indices
         scores = scores.gather(-1, nearest)
-        competing = None if competing is None else competing.gather(-1, nearest)
     if mu_form == "text" and 0 < (tau.detach() if torch.is_tensor(tau) else tau) <= EXP_SAFE_TAU:
         # mu <= 1, so exp(tau (mu - 1)) lies in [exp(-2 tau), 1]: no overflow, no underflow to 0.
         # It shifts every action's sum by the same exp(-tau), which log_softmax cancels, and costs
         # a fraction of logsumexp's generic CPU kernel (the head's largest cost when acting).
-        terms = torch.exp(tau * (scores - 1.0))
-        if competing is not None:  # a free slot's term is 0, and so is every gradient through it
-            terms = terms.masked_fill(~competing, 0.0)
-        per_action = terms.sum(-1).log()  # (B, A)
+        per_action = torch.exp(tau * (scores - 1.0)).sum(-1).log()  # (B, A)
     else:
         # logsumexp per action, shifted by the detached largest logit of each action: every sum
         # holds a term exp(0) = 1, so none is 0 even where the logits are -1e4 (the as-run scores
         # near d = 625 on Catch's unscaled frames); the same value and gradient as logsumexp
         logits = tau * scores
-        if competing is not None:  # masked after tau: tau * -inf would give tau a NaN gradient
-            logits = logits.masked_fill(~competing, -math.inf)
         largest = logits.detach().amax(dim=-1, keepdim=True)  # (B, A, 1)
         per_action = torch.exp(logits - largest).sum(-1).log() + largest.squeeze(-1)
     return F.log_softmax(per_action, dim=-1)
@@ -343,9 +299,8 @@ def tau_corrected_loss(
 ) -> torch.Tensor:
     """The A3C loss with its policy part times scale = 1/tau (thesis 7.2.4): the policy-gradient
     term alone (--tau-loss-scope policy), or that term and the entropy bonus (as run)."""
-    corrected = (
-        policy_loss if args.tau_loss_scope == "policy" else (policy_loss - args.ent_coef * entropy)
-    )
+    entropy_term = 0.0 if args.tau_loss_scope == "policy" else args.ent_coef * entropy
+    corrected = policy_loss - entropy_term
     return loss + (scale - 1.0) * corrected
 
 
@@ -353,17 +308,6 @@ def scheduled_tau(p: float, n: int) -> float:
     """tau = 0.5 ln(p (n - 1) / (1 - p)) (eqs. 7.17, 7.18): by Theorem 1, the tau at which the
     largest policy value n competitors allow is p."""
     return 0.5 * math.log(p * (n - 1) / (1 - p))
-
-
-def prototype_regression(
-    distances: torch.Tensor, beta: torch.Tensor | float, values: torch.Tensor
-) -> torch.Tensor:
-    """Learning vector regression (chapter 8's prototype value head): V = sum_j g_j v_j with
-    g = softmax(-beta d) over the M value prototypes, for distances (B, M) and values (M,) ->
-    (B,). The soft assignment of Regression LVQ (Grbovic and Vucetic 2009), i.e. a normalized
-    RBF network (Moody and Darken 1989) with Gaussian kernels exp(-beta |h - u_j|^2) when d is
-    the squared Euclidean distance."""
-    return torch.softmax(-beta * distances, dim=-1) @ values
 
 
 class ActorCritic(nn.Module):
@@ -384,58 +328,28 @@ class ActorCritic(nn.Module):
             nn.Linear(64 * 9 * 9, 256),
             activation(inplace=True),
         )
-        if args.value_head == "linear":
-            self.value = nn.Linear(256, 1)
+        self.value = nn.Linear(256, 1)
         self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
         init_parameters(self, args.weight_init, args.bias_init)
-        per_action = slots = args.prototypes_per_action
-        if args.prototype_growth:  # slots per action, of which per_action start active
-            slots = args.max_prototypes_per_action or 2 * per_action
-            if not per_action <= slots or args.distance == "inverse-squared-euclidean":
-                raise UsageError(
-                    "--prototype-growth needs --max-prototypes-per-action >= "
-                    f"--prototypes-per-action (got {slots} < {per_action}) and a distance >= 0"
-                )
-            if not (args.growth_interval > 0 and args.growth_ratio > 0):
-                raise UsageError("--growth-interval and --growth-ratio must be > 0")
-        k = args.competition_size
-        self.competition_size = slots if k is None else k
-        if per_action < 1 or not 1 <= self.competition_size <= slots:
+        per_action, k = args.prototypes_per_action, args.competition_size
+        self.competition_size = per_action if k is None else k
+        if per_action < 1 or not 1 <= self.competition_size <= per_action:
             raise UsageError(
-                "--prototypes-per-action must be >= 1 and --competition-size in [1, the "
-                f"prototypes per action, {slots}] (got {per_action} and {args.competition_size})"
+                "--prototypes-per-action must be >= 1 and --competition-size in [1, "
+                f"--prototypes-per-action] (got {per_action} and {args.competition_size})"
             )
         if not args.prototype_init_bound > 0:
             raise UsageError(
                 f"--prototype-init-bound must be > 0 (got {args.prototype_init_bound})"
             )
         self.num_actions, self.distance = num_actions, args.distance
-        # rows a * P ... a * P + P - 1 belong to action a (P: the slots, with growth)
-        self.prototypes = nn.Parameter(torch.empty(num_actions * slots, 256))
+        # rows a * P ... a * P + P - 1 belong to action a
+        self.prototypes = nn.Parameter(torch.empty(num_actions * per_action, 256))
         bound = args.prototype_init_bound
         with torch.no_grad():
             self.prototypes.uniform_(-bound, bound)
             if args.prototype_init == "uniform-clipped":
                 self.prototypes.clamp_(min=0.0)
-        if args.prototype_growth:
-            # 1 for an active slot, 0 for a free one. A parameter, so that theta's sync brings it
-            # to every worker, used detached so that its gradient is 0 and no optimizer moves it:
-            # only grow_and_prune writes it
-            active = torch.zeros(num_actions, slots)
-            active[:, :per_action] = 1.0
-            self.prototype_active = nn.Parameter(active.flatten())
-            # the last growth step done, in the checkpoint so that a resumed run neither
-            # skips nor repeats one
-            self.register_buffer("growth_round", torch.zeros((), dtype=torch.long))
-        self.value_head = args.value_head
-        if args.value_head == "prototypes":
-            if args.value_prototypes < 1:
-                raise UsageError(f"--value-prototypes must be >= 1 (got {args.value_prototypes})")
-            self.value_prototypes = nn.Parameter(torch.empty(args.value_prototypes, 256))
-            with torch.no_grad():
-                self.value_prototypes.uniform_(-bound, bound)
-            self.prototype_values = nn.Parameter(torch.zeros(args.value_prototypes))
-            self.log_value_beta = nn.Parameter(torch.zeros(()))  # beta = 1
         self.mu_form, self.temperature_mode = args.mu_form, args.temperature
         self.loss_correction, self.progress = args.tau_loss_correction, 0.0
         tau = args.tau
@@ -467,66 +381,18 @@ class ActorCritic(nn.Module):
                     )
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        hidden = self.features(obs)
-        return self.log_policy(hidden), self.state_value(hidden)
-
-    def features(self, obs: torch.Tensor) -> torch.Tensor:
-        """h (B, 256) of the frames (B, 4, 84, 84)."""
         # channels_last makes oneDNN's convolution backward about 2x faster on CPU
         x = obs.to(dtype=torch.float32, memory_format=torch.channels_last)
         if self.obs_scale != 1.0:
             x = x * self.obs_scale
-        return self.torso(x)
-
-    def state_value(self, hidden: torch.Tensor) -> torch.Tensor:
-        """V (B,) from the features h (B, 256): linear, or by learning vector regression."""
-        if self.value_head == "linear":
-            return self.value(hidden).squeeze(-1)
-        distances = prototype_distances(hidden, self.value_prototypes, self.distance)
-        return prototype_regression(distances, self.log_value_beta.exp(), self.prototype_values)
-
-    def active_slots(self) -> torch.Tensor | None:
-        """(A, P) bool, True for the active prototypes; None without --prototype-growth."""
-        if not hasattr(self, "prototype_active"):
-            return None
-        return (self.prototype_active.detach() > 0.5).view(self.num_actions, -1)
-
-    def zero_gradient_anchor(self) -> torch.Tensor | float:
-        """0, through the slot mask, so that it is in the graph with a zero gradient (a dense
-        one: the gradient of a plain sum would be an expanded tensor, which clipping cannot
-        scale in place)."""
-        if not hasattr(self, "prototype_active"):
-            return 0.0
-        return (0.0 * self.prototype_active).sum()
-
-    @torch.no_grad()
-    def place_prototypes(self, hidden: torch.Tensor, rng: np.random.Generator) -> None:
-        """--prototype-init data: each prototype (and value prototype) on a feature vector of
-        hidden (N, 256), distinct vectors while there are enough; the value kernel's beta at 1
-        over the mean distance from the features to the value prototypes, so that V starts
-        smooth."""
-        distinct = torch.unique(hidden, dim=0)  # sorted: the draw below makes the order random
-        for prototypes in (self.prototypes, getattr(self, "value_prototypes", None)):
-            if prototypes is not None:
-                rows = rng.choice(
-                    len(distinct), len(prototypes), replace=len(prototypes) > len(distinct)
-                )
-                prototypes.copy_(distinct[torch.from_numpy(rows)])
-        if self.value_head == "prototypes":
-            distances = prototype_distances(hidden, self.value_prototypes, self.distance)
-            scale = distances.abs().mean().item()
-            if scale > NORM_EPS:
-                self.log_value_beta.fill_(-math.log(scale))
+        hidden = self.torso(x)
+        return self.log_policy(hidden), self.value(hidden).squeeze(-1)
 
     def log_policy(self, hidden: torch.Tensor) -> torch.Tensor:
         """log pi (B, A) from the features h (B, 256)."""
         distances = prototype_distances(hidden, self.prototypes, self.distance)
         distances = distances.view(len(hidden), self.num_actions, -1)  # (B, A, P)
-        active = self.active_slots()
-        log_policy = glpq_log_policy(
-            distances, self.tau(), self.competition_size, self.mu_form, active
-        )
-        return log_policy + self.zero_gradient_anchor()
+        return glpq_log_policy(distances, self.tau(), self.competition_size, self.mu_form)
 
     def set_progress(self, progress: float) -> None:
         """The fraction T / T_max of training done, which the p schedule follows."""
@@ -644,9 +510,9 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
     # --precision: the acting and the learning forward passes under bf16 autocast or not, their
     # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
     act_precision, learn_precision = autocast_contexts(args.precision)
-    # the learning forward over obs_buf takes back the conv and linear outputs that acting
-    # computed (same theta', same states) instead of computing them again (a3c_runtime.replay)
-    replay_activations(model, obs_buf)
+    # where it pays, the learning forward over obs_buf takes back the conv and linear outputs
+    # that acting computed (same theta', same states) instead of computing them again
+    replay_activations(model, obs_buf, args)
 
     while shared.keep_running():
         global_step = shared.global_step()
@@ -718,119 +584,6 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
     envs.close()
 
 
-DATA_INIT_ENVS, DATA_INIT_STEPS = 16, 32  # --prototype-init data: 512 states of random play
-
-
-def initialize_network(model: ActorCritic, args: Args) -> None:
-    """A new run's global network, before the workers start: with --prototype-init data, its
-    prototypes placed on the features it gives the states of DATA_INIT_STEPS steps of
-    DATA_INIT_ENVS envs under a uniformly random policy (the near-uniform policy an untrained
-    prototype head plays), seeded by --seed."""
-    if args.prototype_init != "data":
-        return
-    rng = np.random.default_rng(args.seed)
-    frames = random_play_frames(args.env, rng, args.seed)
-    with torch.no_grad():
-        model.place_prototypes(model.features(torch.from_numpy(frames)), rng)
-
-
-def random_play_frames(env_id: str, rng: np.random.Generator, seed: int) -> np.ndarray:
-    """The frames (DATA_INIT_STEPS * DATA_INIT_ENVS, 4, 84, 84) of a uniformly random policy."""
-    envs = make_vector_env(env_id, DATA_INIT_ENVS)
-    obs, _ = envs.reset(seed=seed)
-    frames = [obs.copy()]  # copies: a vector env may return the same buffer every step
-    for _ in range(DATA_INIT_STEPS - 1):
-        obs, *_ = envs.step(rng.integers(envs.single_action_space.n, size=envs.num_envs))
-        frames.append(obs.copy())
-    envs.close()
-    return np.concatenate(frames)
-
-
-GROWTH_ENVS, GROWTH_STEPS = 16, 32  # --prototype-growth: 512 states of the current policy
-
-
-def grow_and_prune(
-    distances: torch.Tensor, actions: torch.Tensor, active: torch.Tensor, ratio: float
-) -> tuple[dict[int, int], dict[int, tuple[int, int]]]:
-    """The --prototype-growth rule on N states: distances (N, A, P) from each state's features
-    to every slot of every action, actions (N,) the actions the policy took there, active
-    (A, P) the slots in use. For each action a that some state took:
-    - prune: an active prototype of a that is no state's nearest among a's prototypes (over the
-      states that took a), while a keeps another: of those, the farthest on average from them;
-    - grow: where the state that took a farthest from a's nearest prototype is more than ratio
-      times the mean of that distance (over all N states, each to its action's nearest
-      prototype) away, a prototype on that state, in the slot just pruned or a free one.
-    Returns ({a: the slot pruned}, {a: (the slot grown, the state's index)})."""
-    masked = distances.masked_fill(~active, math.inf)
-    own = masked[torch.arange(len(actions)), actions]  # (N, P): to the taken action's slots
-    nearest, winner = own.min(-1)
-    scale = nearest.mean()  # not the median: with prototypes on states, most distances are 0
-    pruned, grown = {}, {}
-    for a in actions.unique().tolist():
-        rows = torch.where(actions == a)[0]
-        wins = torch.bincount(winner[rows], minlength=active.shape[1])
-        idle = active[a] & (wins == 0)
-        if idle.any() and active[a].sum() > 1:
-            mean = own[rows].mean(0)
-            pruned[a] = int(torch.where(idle, mean, -math.inf).argmax())
-        state = int(rows[nearest[rows].argmax()])
-        free = ~active[a]
-        if a in pruned:
-            free[pruned[a]] = True
-        if nearest[state] > ratio * scale > 0 and free.any():
-            slot = pruned[a] if a in pruned else int(free.nonzero()[0])
-            grown[a] = (slot, state)
-    return pruned, grown
-
-
-def maintain_prototypes(shared: Shared, args: Args, global_step: int) -> None:
-    """--prototype-growth, in the main process beside the workers: every --growth-interval
-    global steps, grow_and_prune on the states of GROWTH_STEPS steps of GROWTH_ENVS envs under
-    the current global policy (actions sampled from pi). A grown prototype sits on its state's
-    features, its optimizer statistics restarted; the workers get the new slots with theta."""
-    if not args.prototype_growth:
-        return
-    model, due = shared.model, global_step // args.growth_interval
-    if due <= int(model.growth_round):
-        return
-    model.growth_round.fill_(due)
-    if hasattr(model, "set_progress"):
-        model.set_progress(global_step / args.total_timesteps)
-    rng = np.random.default_rng([args.seed, due])
-    envs = make_vector_env(args.env, GROWTH_ENVS)
-    obs, _ = envs.reset(seed=int(rng.integers(2**31)))
-    frames, actions = [], []
-    with torch.no_grad():
-        for _ in range(GROWTH_STEPS):
-            probs = model(torch.from_numpy(obs))[0].float().exp().numpy()
-            action = sample_actions(probs, rng.random(len(obs)))
-            frames.append(obs.copy())  # the env may reuse its buffer
-            actions.append(action)
-            obs, *_ = envs.step(action)
-        envs.close()
-        hidden = model.features(torch.from_numpy(np.concatenate(frames)))
-        distances = prototype_distances(hidden, model.prototypes, model.distance)
-        active = model.active_slots()
-        distances = distances.view(len(hidden), *active.shape)
-        taken = torch.from_numpy(np.concatenate(actions))
-        pruned, grown = grow_and_prune(distances, taken, active, args.growth_ratio)
-        slots, mask = active.shape[1], model.prototype_active
-        for a, slot in pruned.items():
-            mask[a * slots + slot] = 0.0
-        for a, (slot, state) in grown.items():
-            model.prototypes[a * slots + slot] = hidden[state]
-            mask[a * slots + slot] = 1.0
-        index = next(i for i, p in enumerate(shared.params) if p is model.prototypes)
-        shared.optimizer.restart(index, [a * slots + slot for a, (slot, _) in grown.items()])
-    if pruned or grown:
-        counts = model.active_slots().sum(1).tolist()
-        print(
-            f"prototype growth at step {global_step:,}: pruned for actions {sorted(pruned)}, "
-            f"grown for {sorted(grown)}; active per action {counts}",
-            flush=True,
-        )
-
-
 AGENT = Agent(
     script=os.path.basename(__file__),
     Args=Args,
@@ -838,8 +591,6 @@ AGENT = Agent(
     network=ActorCritic,
     network_args=NETWORK_ARGS,
     worker=worker,
-    initialize=initialize_network,
-    maintain=maintain_prototypes,
 )
 
 

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from a3c_runtime import (
     Agent,
     Shared,
-    UsageError,  # noqa: F401  (the variants' networks raise it for bad flags)
+    UsageError,
     annealed_lr,
     autocast_contexts,
     clip_gradients,
@@ -29,7 +29,6 @@ from a3c_runtime import (
     default_text,
     process_seed,
     replay_activations,
-    resolve_defaults,  # noqa: F401  (tools fill an Args's defaults through the script)
     run,
     seed_everything,
 )
@@ -315,9 +314,9 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
     # --precision: the acting and the learning forward passes under bf16 autocast or not, their
     # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
     act_precision, learn_precision = autocast_contexts(args.precision)
-    # the learning forward over obs_buf takes back the conv and linear outputs that acting
-    # computed (same theta', same states) instead of computing them again (a3c_runtime.replay)
-    replay_activations(model, obs_buf)
+    # where it pays, the learning forward over obs_buf takes back the conv and linear outputs
+    # that acting computed (same theta', same states) instead of computing them again
+    replay_activations(model, obs_buf, args)
 
     while shared.keep_running():
         global_step = shared.global_step()

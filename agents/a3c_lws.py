@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from a3c_runtime import (
     Agent,
     Shared,
-    UsageError,  # noqa: F401  (the variants' networks raise it for bad flags)
+    UsageError,
     annealed_lr,
     autocast_contexts,
     clip_gradients,
@@ -27,7 +27,6 @@ from a3c_runtime import (
     default_text,
     process_seed,
     replay_activations,
-    resolve_defaults,  # noqa: F401  (tools fill an Args's defaults through the script)
     run,
     seed_everything,
 )
@@ -125,11 +124,6 @@ class Args:
     lws_kernel_init: Literal["default", "uniform-sqrt3"] = "default"
     """the LWS kernels' init: default = --weight-init and --bias-init, like the other layers;
     uniform-sqrt3 (as run) = U(+-sqrt(3 / fan_in)) with zero biases, other layers unchanged"""
-    lws_centroid_source: Literal["static", "online"] = "static"
-    """static: the centroids above, one set for every input (fixed, or trained as parameters);
-    online (chapter 8's future work): a small network predicts each LWS layer's centroids from
-    the input frames, per sample, and the similarity is computed per sample, attention-like; it
-    starts at the static centroids' initial positions (CentroidPredictor)"""
     lws_centroid_init: Literal["uniform", "grid"] = "uniform"
     """uniform: U[0, 1]^2 (thesis 6.1.2); grid: an n x n grid, n = sqrt(S), at k / (n + 1) on
     each axis (1/3 and 2/3 for S = 4), as the thesis code placed them for "LWS S" (Figure 6.3:
@@ -188,7 +182,7 @@ def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
 # args a checkpoint's network depends on; seed too, since fixed centroids are drawn from it
 NETWORK_ARGS = ("env", "activation", "scale_obs", "lws_kcps", "lws_centroids", "lws_trainable",
                 "lws_similarity", "lws_padding", "lws_second_layer_maps", "lws_centroid_init",
-                "lws_centroid_source", "seed")  # fmt: skip
+                "seed")  # fmt: skip
 
 
 class LWSConv2d(nn.Module):
@@ -232,10 +226,7 @@ class LWSConv2d(nn.Module):
         shape = () if self.metric_name == "sigma" else (self.kcps, maps)
         metric = torch.eye(2).repeat(*shape, 1, 1)
         self.cached_for: tuple[torch.Tensor, torch.Tensor] | None = None  # see similarity_weights
-        # online: the predicted centroids of the batch, set by the network before each pass; the
-        # static centroids then only give the predictor its starting point
-        self.sample_centroids: torch.Tensor | None = None
-        if args.lws_trainable and args.lws_centroid_source == "static":
+        if args.lws_trainable:
             self.centroids = nn.Parameter(centroids)
         else:
             self.register_buffer("centroids", centroids)
@@ -249,10 +240,8 @@ class LWSConv2d(nn.Module):
         return getattr(self, self.metric_name)
 
     def similarity_weights(self) -> torch.Tensor:
-        """S_s / sum_s' S_s' as (H, W, S, maps): the conv output's channels_last order, or
-        (B, H, W, S, maps) with online centroids. At every output cell they sum to 1 over s."""
-        if self.sample_centroids is not None:
-            return self.compute_similarity_weights(self.sample_centroids)
+        """S_s / sum_s' S_s' as (H, W, S, maps): the conv output's channels_last order. At every
+        output cell they sum to 1 over s."""
         if torch.is_grad_enabled():
             return self.compute_similarity_weights()
         # acting: the centroids and Sigma (or A_s) change once per rollout (the sync), not per
@@ -265,14 +254,12 @@ class LWSConv2d(nn.Module):
             self.cached_weights = self.compute_similarity_weights()
         return self.cached_weights
 
-    def compute_similarity_weights(self, centroids: torch.Tensor | None = None) -> torch.Tensor:
-        """The weights for the centroids (S, maps, 2), or per sample (B, S, maps, 2), by
-        default the layer's own."""
-        centroids = self.centroids if centroids is None else centroids
-        centroid_rows, centroid_cols = centroids.unbind(-1)  # i_s, j_s: ([B,] S, maps) each
+    def compute_similarity_weights(self) -> torch.Tensor:
+        """The weights for the layer's centroids (S, maps, 2)."""
+        centroid_rows, centroid_cols = self.centroids.unbind(-1)  # i_s, j_s: (S, maps) each
         axis = self.axis[:, None, None]
-        rows = (axis - centroid_rows[..., None, :, :])[..., None, :, :]  # ([B,] H, 1, S, maps)
-        cols = (axis - centroid_cols[..., None, :, :])[..., None, :, :, :]  # ([B,] 1, W, S, maps)
+        rows = (axis - centroid_rows[..., None, :, :])[..., None, :, :]  # (H, 1, S, maps)
+        cols = (axis - centroid_cols[..., None, :, :])[..., None, :, :, :]  # (1, W, S, maps)
         # d^T Q d, expanded: 7x faster than an einsum over (H, W, S, m, 2)
         if self.metric_name == "sigma":
             (q00, q01), (q10, q11) = self.sigma  # Q = Sigma
@@ -290,44 +277,6 @@ class LWSConv2d(nn.Module):
         # the S convolutions' outputs as (B, H, W, S, C): a view of the channels_last output
         y = self.conv(x).permute(0, 2, 3, 1).unflatten(3, (self.kcps, self.out_channels))
         return (y * self.similarity_weights()).sum(3).permute(0, 3, 1, 2)  # (B, C, H, W)
-
-
-class CentroidPredictor(nn.Module):
-    """--lws-centroid-source online (thesis chapter 8: "a component of the network that predicts
-    the appropriate centroid location given some input"): from the frames (B, 4, 84, 84) in
-    [0, 1], each
-    LWS layer's centroids (B, S, maps, 2) in (0, 1), as sigmoid(W z + b) of a small encoder's z:
-    4x4 average pooling (84 -> 21), conv 16 5x5/2 (-> 9), FC 64, ReLUs. Each head starts with
-    W = 0 and b = logit of its layer's static centroids, so that every sample's centroids begin
-    where the static ones would, and the value and policy losses move them per input."""
-
-    def __init__(self, layers: list[LWSConv2d], hidden: int = 64):
-        super().__init__()
-        self.encoder = nn.Sequential(
-            nn.AvgPool2d(4),
-            nn.Conv2d(4, 16, 5, stride=2),
-            nn.ReLU(inplace=True),
-            nn.Flatten(),
-            nn.Linear(16 * 9 * 9, hidden),
-            nn.ReLU(inplace=True),
-        )
-        self.shapes = [tuple(layer.centroids.shape) for layer in layers]  # (S, maps, 2) each
-        self.heads = nn.ModuleList(nn.Linear(hidden, math.prod(shape)) for shape in self.shapes)
-        self.starts = [layer.centroids.detach().clamp(0.02, 0.98) for layer in layers]
-
-    def reset_heads(self) -> None:
-        """W = 0, b = logit(static centroids): after the network's weight initialisation."""
-        with torch.no_grad():
-            for head, start in zip(self.heads, self.starts, strict=True):
-                head.weight.zero_()
-                head.bias.copy_(torch.logit(start).flatten())
-
-    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
-        z = self.encoder(x)
-        return [
-            torch.sigmoid(head(z)).view(len(x), *shape)
-            for head, shape in zip(self.heads, self.shapes, strict=True)
-        ]
 
 
 class ActorCritic(nn.Module):
@@ -380,21 +329,10 @@ class ActorCritic(nn.Module):
         if args.lws_kernel_init == "uniform-sqrt3":  # as run: tflearn's uniform_scaling, bias 0
             for layer in (first, second):
                 init_parameters(layer.conv, "uniform-sqrt3", 0.0)
-        self.lws_layers = [first, second]
-        if args.lws_centroid_source == "online":
-            self.centroid_predictor = CentroidPredictor(self.lws_layers)
-            init_parameters(self.centroid_predictor, args.weight_init, args.bias_init)
-            self.centroid_predictor.reset_heads()
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         # channels_last makes oneDNN's convolution backward about 2x faster on CPU
         x = obs.to(dtype=torch.float32, memory_format=torch.channels_last)
-        if hasattr(self, "centroid_predictor"):  # online: this batch's centroids, per sample
-            # the predictor sees frames in [0, 1] whatever --scale-obs: unscaled Catch frames
-            # would saturate its sigmoids as soon as its heads' weights leave 0
-            predicted = self.centroid_predictor(x * (1.0 / 255.0))
-            for layer, centroids in zip(self.lws_layers, predicted, strict=True):
-                layer.sample_centroids = centroids
         if self.obs_scale != 1.0:
             x = x * self.obs_scale
         hidden = self.torso(x)
@@ -495,9 +433,9 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
     # --precision: the acting and the learning forward passes under bf16 autocast or not, their
     # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
     act_precision, learn_precision = autocast_contexts(args.precision)
-    # the learning forward over obs_buf takes back the conv and linear outputs that acting
-    # computed (same theta', same states) instead of computing them again (a3c_runtime.replay)
-    replay_activations(model, obs_buf)
+    # where it pays, the learning forward over obs_buf takes back the conv and linear outputs
+    # that acting computed (same theta', same states) instead of computing them again
+    replay_activations(model, obs_buf, args)
 
     while shared.keep_running():
         global_step = shared.global_step()

@@ -3,7 +3,7 @@
     python benchmarks/a3c_throughput.py [SCRIPT ...] [--seconds 30] [--rounds 1]
                                         [--num-workers N] [--no-baseline] [--env Catch-v0]
                                         [--envs-per-worker 1 [K ...]] [--precision fp32 [...]]
-                                        [--replay on [off]] [--eval-episodes N]
+                                        [--replay script|on|off ...] [--eval-episodes N]
                                         [--env-backend native [python]] [--env-threads 1 [T ...]]
                                         [--ceilings]
 
@@ -11,9 +11,10 @@ It runs each script's own training loop (evaluations included) for --seconds and
 steps/s after the workers have started. agents/a3c_ff.py is always measured, and the other
 SCRIPTs (e.g. agents/a3c_lws.py) are compared with it: time per step relative to a3c_ff's, from
 the same run. Every script runs at every setting, each value of --envs-per-worker with each
---precision (K = 1 is the thesis's algorithm) and each --replay: off turns the scripts'
-ActivationReplay off (the learning pass recomputes the forward), to measure what it saves.
---replay off replaces the scripts' replay_activations (this process, before the workers fork).
+--precision (K = 1 is the thesis's algorithm) and each --replay: script leaves the choice to the
+scripts' replay_activations (as a run does), on attaches the ActivationReplay to every worker
+(K = 1 too) and off to none (the learning pass recomputes the forward), to measure what it saves;
+both replace replay_activations in this process, before the workers fork.
 On an ALE game, --env-backend and --env-threads choose catch_env.wrappers.make_vector_env's
 backend (native: ale-py's C++ AtariVectorEnv on --env-threads emulator threads per worker;
 python: today's SyncVectorEnv of Gymnasium-wrapped envs), also before the workers fork.
@@ -62,8 +63,16 @@ FF_SCRIPT = AGENTS / "a3c_ff.py"
 PRECISIONS = ("auto", "fp32", "bf16", "bf16-learn")  # --precision of the scripts
 
 
-def no_replay(model, rollout_frames) -> None:
+def no_replay(model, rollout_frames, args) -> None:
     """--replay off: the scripts' replay_activations does nothing, every layer stays plain."""
+
+
+def forced_replay(model, rollout_frames, args) -> a3c_runtime.ActivationReplay:
+    """--replay on: every worker replays, whatever replay_activations would choose."""
+    return a3c_runtime.ActivationReplay(model, rollout_frames)
+
+
+REPLAY = {"script": a3c_runtime.replay_activations, "on": forced_replay, "off": no_replay}
 
 
 def load_script(path: Path):
@@ -75,7 +84,7 @@ def load_script(path: Path):
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
-    for attr in ("Args", "ActorCritic", "AGENT", "resolve_defaults"):
+    for attr in ("Args", "ActorCritic", "AGENT"):
         if not hasattr(module, attr):
             raise SystemExit(f"{path} is not an A3C agent script: it has no {attr}")
     return module
@@ -105,7 +114,7 @@ def network_outputs(model, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tenso
 
 def flops_per_env_step(a3c, t_max: int) -> float:
     """FLOPs of one acting forward plus 1/t_max of a t_max-step training forward and backward."""
-    args = a3c.resolve_defaults(a3c.Args())
+    args = a3c_runtime.resolve_defaults(a3c.Args())
     model = a3c.ActorCritic(3, args)
     params = [p for p in model.parameters() if p.requires_grad]
     with FlopCounterMode(display=False) as act, torch.inference_mode():
@@ -186,7 +195,7 @@ def run_baseline(
 ) -> tuple[float, float, float]:
     """Returns (steps/s after the warm-up, total steps / worker CPU-seconds * num_workers,
     the workers' page faults per step)."""
-    args = a3c.resolve_defaults(a3c.Args(num_workers=num_workers, env=env))
+    args = a3c_runtime.resolve_defaults(a3c.Args(num_workers=num_workers, env=env))
     global_model = a3c.ActorCritic(num_actions(a3c, env), args)
     global_model.share_memory()
     square_avg = [torch.zeros_like(p).share_memory_() for p in global_model.parameters()]
@@ -249,13 +258,13 @@ def run_script(
     envs_per_worker: int,
     precision: str,
     eval_episodes: int | None = None,
-    replay: bool = True,
+    replay: str = "script",
     env_backend: str = "native",
     env_threads: int = 1,
 ) -> tuple[float, float, float]:
     """Returns (steps/s once the workers are ready, steps / CPU-seconds * num_workers, the
     page faults per step of the run's processes)."""
-    a3c.replay_activations = a3c_runtime.replay_activations if replay else no_replay
+    a3c.replay_activations = REPLAY[replay]
     catch_env.wrappers.make_vector_env = functools.partial(
         MAKE_VECTOR_ENV, backend=env_backend, num_threads=env_threads
     )
@@ -265,7 +274,7 @@ def run_script(
                         precision=precision, eval_episodes=eval_episodes)  # fmt: skip
         args.total_timesteps = 10**9  # the time limit ends the run
         cpu_before, faults_before = children_cpu_seconds(), children_page_faults()
-        summary = a3c_runtime.train(a3c.AGENT, a3c.resolve_defaults(args))
+        summary = a3c_runtime.train(a3c.AGENT, a3c_runtime.resolve_defaults(args))
     a3c.replay_activations = a3c_runtime.replay_activations
     catch_env.wrappers.make_vector_env = MAKE_VECTOR_ENV
     per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
@@ -289,8 +298,9 @@ def main() -> None:
                         help="the K values to measure")  # fmt: skip
     parser.add_argument("--precision", nargs="+", default=["fp32"], choices=PRECISIONS,
                         help="the precisions to measure")  # fmt: skip
-    parser.add_argument("--replay", nargs="+", default=["on"], choices=["on", "off"],
-                        help="ActivationReplay on (as the scripts run) and/or off")  # fmt: skip
+    parser.add_argument("--replay", nargs="+", default=["script"], choices=list(REPLAY),
+                        help="ActivationReplay as the scripts choose (script), on every worker "
+                             "(on, K = 1 too) and/or off")  # fmt: skip
     parser.add_argument("--env-backend", nargs="+", default=["native"],
                         choices=["native", "python"],
                         help="ALE games: make_vector_env's backend(s) to measure")  # fmt: skip
@@ -320,7 +330,7 @@ def main() -> None:
     if num_workers < 1:
         parser.error("--num-workers must be >= 1")
     try:
-        a3c.resolve_defaults(a3c.Args(env=opts.env))
+        a3c_runtime.resolve_defaults(a3c.Args(env=opts.env))
     except a3c_runtime.UsageError as e:
         parser.error(str(e))
     atari = catch_env.wrappers.is_atari(opts.env)
@@ -383,7 +393,7 @@ def main() -> None:
                 flush=True,
             )
             result = run_script(scripts[name], opts.env, num_workers, opts.seconds, k, precision,
-                                opts.eval_episodes, replay == "on", backend, threads)  # fmt: skip
+                                opts.eval_episodes, replay, backend, threads)  # fmt: skip
             print(f"{name}: {result[0]:,.0f} steps/s, {result[2]:.1f} page faults per step")
             measured[name, k, precision, replay, backend, threads].append(result)
 

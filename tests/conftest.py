@@ -22,16 +22,26 @@ ROOT = Path(__file__).resolve().parents[1]
 AGENTS = ROOT / "agents"
 
 FORK = multiprocessing.get_context("fork")
-SCRIPTS = ("a3c_ff", "a3c_lws", "a3c_ss", "a3c_ww", "a3c_lstm", "a3c_lpq", "a3c_glpq")
+# every agent script, found on disk so that a new one is tested without being listed: the
+# thesis's (agents/a3c_*.py) and chapter 8's ideas (agents/future_work/a3c_*.py), by file stem
+SCRIPT_PATHS = {
+    path.stem: path
+    for folder in (AGENTS, AGENTS / "future_work")
+    for path in sorted(folder.glob("a3c_*.py"))
+}
+SCRIPTS = tuple(name for name, path in SCRIPT_PATHS.items() if path.parent == AGENTS)
+FUTURE_WORK = tuple(name for name in SCRIPT_PATHS if name not in SCRIPTS)
+ALL_SCRIPTS = SCRIPTS + FUTURE_WORK
 # a tiny run: 2 workers, 5 evaluation episodes, a progress line every second
 TINY = ["--num-workers", "2", "--eval-episodes", "5", "--log-interval", "1"]
 
 
 def load_script(name: str) -> ModuleType:
-    """Import agents/<name>.py as a module named after its file (once per test session)."""
+    """Import the agent script <name>.py (agents/ or agents/future_work/) as a module named
+    after its file (once per test session)."""
     if name in sys.modules:
         return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, AGENTS / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, SCRIPT_PATHS[name])
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
@@ -39,9 +49,9 @@ def load_script(name: str) -> ModuleType:
 
 
 def run_script(name: str, *flags: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    """Run agents/<name>.py by path, as a user does, from the repository root."""
+    """Run the agent script <name>.py by path, as a user does, from the repository root."""
     return subprocess.run(
-        [sys.executable, str(AGENTS / f"{name}.py"), *flags],
+        [sys.executable, str(SCRIPT_PATHS[name]), *flags],
         capture_output=True,
         text=True,
         timeout=timeout,

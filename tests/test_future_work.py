@@ -1,34 +1,47 @@
-"""Tests of the thesis's future work (chapter 8): the prototype value head (learning vector
-regression), the prototype initialisation from the data and dynamic prototypes in
-agents/a3c_lpq.py and agents/a3c_glpq.py, and online local weight sharing (centroids predicted
-per sample) in agents/a3c_lws.py, against hand-computed values, then end to end."""
+"""Tests of the thesis's future work (chapter 8), each idea a script of its own in
+agents/future_work/: the prototype value head (learning vector regression), prototypes from the
+data and dynamic prototypes on LPQ and GLPQ, and online local weight sharing (centroids predicted
+per sample) on LWS; against hand-computed values, a thesis script's refusal of their checkpoints,
+then end to end."""
 
 import math
 
 import numpy as np
 import pytest
 import torch
-from conftest import evaluation_steps, load_script, run_script
+from a3c_runtime import UsageError
+from conftest import evaluation_steps, load_script, main_exit
 
 TINY = ["--num-workers", "2", "--eval-episodes", "2", "--log-interval", "1"]
 
 
-@pytest.fixture(scope="module", params=["a3c_lpq", "a3c_glpq"])
-def script(request):
-    return load_script(request.param)
+def scripts(idea: str) -> pytest.fixture:
+    @pytest.fixture(scope="module", params=[f"a3c_lpq_{idea}", f"a3c_glpq_{idea}"])
+    def fixture(request):
+        return load_script(request.param)
+
+    return fixture
+
+
+value_script = scripts("value_head")
+data_script = scripts("data_init")
+growth_script = scripts("growth")
 
 
 def network(script, **flags):
+    import a3c_runtime
+
     import catch_env  # noqa: F401  (registers Catch-v0)
 
-    args = script.resolve_defaults(script.Args(**flags))
+    args = a3c_runtime.resolve_defaults(script.Args(**flags))
     return script.ActorCritic(3, args), args
 
 
 # ---------------------------------------------------------------------------------------------
 # The prototype value head: V = sum_j softmax_j(-beta d_j) v_j
 # ---------------------------------------------------------------------------------------------
-def test_prototype_regression_by_hand(script):
+def test_prototype_regression_by_hand(value_script):
+    script = value_script
     distances = torch.tensor([[0.0, 1.0], [2.0, 2.0]])
     values = torch.tensor([1.0, 3.0])
     # row 1: weights e^0 : e^-1 = 0.7311 : 0.2689; row 2: equal weights
@@ -40,9 +53,9 @@ def test_prototype_regression_by_hand(script):
     assert script.prototype_regression(distances, 0.5, values)[0].item() == pytest.approx(half)
 
 
-def test_the_value_head_on_the_network_by_hand(script):
+def test_the_value_head_on_the_network_by_hand(value_script):
     """Two value prototypes in the 256-d feature space, h on the first: V by hand."""
-    model, _ = network(script, value_head="prototypes", value_prototypes=2)
+    model, _ = network(value_script, value_prototypes=2)
     h = torch.zeros(1, 256)
     with torch.no_grad():
         model.value_prototypes.zero_()
@@ -54,8 +67,8 @@ def test_the_value_head_on_the_network_by_hand(script):
 
 
 @pytest.mark.parametrize("scale", [1.0, 1e3, 1e5])  # Catch's unscaled features reach 1e3-1e5
-def test_the_value_head_has_finite_gradients_and_only_the_value_loss_trains_it(script, scale):
-    model, _ = network(script, value_head="prototypes")
+def test_the_value_head_has_finite_gradients_and_only_the_value_loss_trains_it(value_script, scale):
+    model, _ = network(value_script)
     hidden = (torch.rand(5, 256) * scale).requires_grad_()
     log_probs = model.log_policy(hidden)
     values = model.state_value(hidden)
@@ -69,23 +82,24 @@ def test_the_value_head_has_finite_gradients_and_only_the_value_loss_trains_it(s
     assert all(g is None for g in policy_grads)  # and the value head none from the policy
 
 
-def test_the_linear_value_head_is_the_default_and_unchanged(script):
-    model, args = network(script)
-    assert args.value_head == "linear" and isinstance(model.value, torch.nn.Linear)
-    assert not hasattr(model, "value_prototypes")
-    hidden = torch.rand(4, 256)
-    torch.testing.assert_close(model.state_value(hidden), model.value(hidden).squeeze(-1))
+def test_the_value_head_replaces_the_linear_critic(value_script):
+    model, _ = network(value_script)
+    assert not hasattr(model, "value") and model.value_prototypes.shape == (16, 256)
+    obs = torch.randint(0, 256, (3, 4, 84, 84), dtype=torch.uint8)
+    _, values = model(obs)
+    hidden = model.torso(obs.float().contiguous(memory_format=torch.channels_last))
+    torch.testing.assert_close(values, model.state_value(hidden))
 
 
-def test_bad_value_prototypes_is_a_usage_error(script):
-    with pytest.raises(script.UsageError, match="--value-prototypes must be >= 1"):
-        network(script, value_head="prototypes", value_prototypes=0)
+def test_bad_value_prototypes_is_a_usage_error(value_script):
+    with pytest.raises(UsageError, match="--value-prototypes must be >= 1"):
+        network(value_script, value_prototypes=0)
 
 
-def test_a_value_prototype_learns_the_value_of_its_states(script):
+def test_a_value_prototype_learns_the_value_of_its_states(value_script):
     """Gradient descent on 0.5 (G - V)^2 moves each v_j toward the returns of the states it
     covers: two separated clusters of features with returns 1 and -1."""
-    model, _ = network(script, value_head="prototypes", value_prototypes=2)
+    model, _ = network(value_script, value_prototypes=2)
     with torch.no_grad():
         model.value_prototypes.zero_()
         model.value_prototypes[1, :] = 1.0
@@ -101,27 +115,24 @@ def test_a_value_prototype_learns_the_value_of_its_states(script):
 
 
 # ---------------------------------------------------------------------------------------------
-# --prototype-init data
+# Prototypes from the data (a3c_*_data_init.py)
 # ---------------------------------------------------------------------------------------------
-def test_place_prototypes_puts_each_prototype_on_a_distinct_feature(script):
-    model, _ = network(script, value_head="prototypes", value_prototypes=4)
+def test_place_prototypes_puts_each_prototype_on_a_distinct_feature(data_script):
+    model, _ = network(data_script)
     hidden = torch.arange(100 * 256, dtype=torch.float32).view(100, 256) / 1000
     model.place_prototypes(hidden, np.random.default_rng(0))
-    for prototypes in (model.prototypes, model.value_prototypes):
-        rows = [int(torch.where((hidden == p).all(1))[0][0]) for p in prototypes.detach()]
-        assert len(set(rows)) == len(rows)  # distinct rows: 100 features for 48 prototypes
-    distances = script.prototype_distances(hidden, model.value_prototypes, "squared-euclidean")
-    beta = model.log_value_beta.exp().item()
-    assert beta == pytest.approx(1 / distances.mean().item(), rel=1e-5)
+    rows = [int(torch.where((hidden == p).all(1))[0][0]) for p in model.prototypes.detach()]
+    assert len(set(rows)) == len(rows) == 48  # distinct rows: 100 features for 48 prototypes
 
 
-def test_data_initialisation_on_catch_places_prototypes_at_the_features_scale(script):
+def test_data_initialisation_on_catch_places_prototypes_at_the_features_scale(data_script):
     """On Catch's unscaled frames the features are far from U(-1/16, 1/16) prototypes: the
     uniform init puts every prototype at about |h|^2 from h, the data init at 0 from some h."""
+    script = data_script
     torch.manual_seed(3)  # as train's seed_everything before it builds the network
-    model, args = network(script, prototype_init="data", value_head="prototypes", seed=3)
+    model, args = network(script, seed=3)
     uniform = model.prototypes.detach().clone()
-    script.initialize_network(model, args)
+    script.AGENT.initialize(model, args)  # what train does for a new run
     frames = script.random_play_frames("Catch-v0", np.random.default_rng(3), 3)
     assert frames.shape == (script.DATA_INIT_STEPS * script.DATA_INIT_ENVS, 4, 84, 84)
     # every step's states, not 32 copies of the last (the vector env reuses its buffer)
@@ -136,20 +147,20 @@ def test_data_initialisation_on_catch_places_prototypes_at_the_features_scale(sc
     assert len(torch.unique(model.prototypes.detach(), dim=0)) == len(model.prototypes)
     assert nearest_uniform.amin(0).min().item() > 100
     torch.manual_seed(3)
-    again, _ = network(script, prototype_init="data", value_head="prototypes", seed=3)
+    again, _ = network(script, seed=3)
     script.initialize_network(again, args)
     torch.testing.assert_close(again.prototypes, model.prototypes)  # seeded
 
 
-def test_the_uniform_default_is_left_alone(script):
-    model, args = network(script)
+def test_the_thesis_initialisation_is_one_flag_away(data_script):
+    model, args = network(data_script, prototype_init="uniform")
     before = model.prototypes.detach().clone()
-    script.initialize_network(model, args)
+    data_script.initialize_network(model, args)
     torch.testing.assert_close(model.prototypes.detach(), before)
 
 
 # ---------------------------------------------------------------------------------------------
-# --prototype-growth: masked slots, grow_and_prune, maintain_prototypes
+# Dynamic prototypes (a3c_*_growth.py): masked slots, grow_and_prune, maintain_prototypes
 # ---------------------------------------------------------------------------------------------
 def growth_case(idle_slot_wins: bool):
     """4 states, 2 actions, 3 slots each; action 0 has slots 0 and 1 active, action 1 slot 0.
@@ -163,7 +174,8 @@ def growth_case(idle_slot_wins: bool):
     return distances, torch.tensor([0, 0, 0, 1]), active
 
 
-def test_grow_and_prune_by_hand(script):
+def test_grow_and_prune_by_hand(growth_script):
+    script = growth_script
     # nearest to the taken action's active prototypes: 1, 2, 9, 3 -> mean 3.75, so ratio 2
     # grows where a state is more than 7.5 away: state 2 for action 0 (9); action 1's only
     # state is 3 away. Slot 1 of action 0 is no state's nearest: pruned,
@@ -180,20 +192,21 @@ def test_grow_and_prune_by_hand(script):
 
 def growth_network(script, **flags):
     flags = {"prototypes_per_action": 2, "max_prototypes_per_action": 3, **flags}
-    return network(script, prototype_growth=True, **flags)
+    return network(script, **flags)
 
 
-def test_free_slots_change_nothing_and_get_no_gradient(script):
+def test_free_slots_change_nothing_and_get_no_gradient(growth_script):
     """The policy with a free slot (placed right on h, where it would dominate) is the policy of
     the active prototypes alone; gradients are finite and the mask's is exactly 0."""
     # k = 2 in both: GLPQ's hot tau counts k |A| competitors (with growth k defaults to the slots)
-    model, _ = growth_network(script, competition_size=2)
+    model, _ = growth_network(growth_script, competition_size=2)
     assert model.prototypes.shape == (9, 256) and model.active_slots().sum().item() == 6
     hidden = torch.rand(5, 256) * 30
     with torch.no_grad():
         model.prototypes.view(3, 3, 256)[:, 2] = hidden[0]  # the free slots, on h
     log_probs = model.log_policy(hidden)
-    active_only, _ = network(script, prototypes_per_action=2, competition_size=2)
+    thesis = load_script(growth_script.__name__.removesuffix("_growth"))
+    active_only, _ = network(thesis, prototypes_per_action=2, competition_size=2)
     with torch.no_grad():
         active_only.prototypes.copy_(model.prototypes.view(3, 3, 256)[:, :2].reshape(6, 256))
     torch.testing.assert_close(log_probs, active_only.log_policy(hidden))
@@ -208,8 +221,8 @@ def test_free_slots_change_nothing_and_get_no_gradient(script):
 def test_free_slots_give_a_trainable_tau_a_finite_gradient(mu_form, parametrization):
     """GLPQ's free slots are masked after the product with tau: masking the scores before it
     would make tau's gradient 0 * -inf = NaN (the default k counts every slot)."""
-    glpq = load_script("a3c_glpq")
-    model, _ = network(glpq, prototype_growth=True, temperature="trainable", mu_form=mu_form,
+    glpq = load_script("a3c_glpq_growth")
+    model, _ = network(glpq, temperature="trainable", mu_form=mu_form,
                        tau_parametrization=parametrization)  # fmt: skip
     hidden = torch.rand(6, 256) * 30
     log_probs = model.log_policy(hidden)
@@ -218,14 +231,14 @@ def test_free_slots_give_a_trainable_tau_a_finite_gradient(mu_form, parametrizat
     assert torch.isfinite(log_probs).all() and torch.isfinite(grad) and grad != 0
 
 
-def test_bad_growth_flags_are_usage_errors(script):
-    with pytest.raises(script.UsageError, match="--max-prototypes-per-action"):
-        growth_network(script, prototypes_per_action=4)  # 3 slots < 4
-    with pytest.raises(script.UsageError, match="--growth-interval"):
-        growth_network(script, growth_interval=0)
+def test_bad_growth_flags_are_usage_errors(growth_script):
+    with pytest.raises(UsageError, match="--max-prototypes-per-action"):
+        growth_network(growth_script, prototypes_per_action=4)  # 3 slots < 4
+    with pytest.raises(UsageError, match="--growth-interval"):
+        growth_network(growth_script, growth_interval=0)
 
 
-def test_maintain_prototypes_grows_on_the_policys_states(script):
+def test_maintain_prototypes_grows_on_the_policys_states(growth_script):
     """On Catch, with a tiny ratio every action that the policy took gains a prototype on one of
     its states' features, in a free or pruned slot, with its optimizer statistics restarted;
     every action keeps at least one prototype, and nothing happens before the interval."""
@@ -233,6 +246,7 @@ def test_maintain_prototypes_grows_on_the_policys_states(script):
 
     from a3c_runtime.hogwild import SharedRMSprop
 
+    script = growth_script
     torch.manual_seed(0)
     model, args = growth_network(script, growth_ratio=1e-6, growth_interval=100, seed=2)
     params = list(model.parameters())
@@ -249,16 +263,30 @@ def test_maintain_prototypes_grows_on_the_policys_states(script):
     assert (active.sum(1) >= 1).all() and (active.sum(1) <= 3).all()
     changed = (model.prototypes.detach() != before).any(1).nonzero().flatten().tolist()
     assert changed  # some action grew
-    frames = torch.from_numpy(script.random_play_frames("Catch-v0", np.random.default_rng(0), 0))
     for row in changed:
         assert active.flatten()[row]
         assert shared.optimizer.square_avg[index][row].abs().max() == 0  # restarted
     unchanged = [row for row in range(9) if row not in changed]
     assert (shared.optimizer.square_avg[index][unchanged] == 5.0).all()
-    assert frames.shape[0] == script.DATA_INIT_STEPS * script.DATA_INIT_ENVS
 
 
-def test_growth_rounds_survive_a_resume(script):
+def test_restart_statistics_resets_the_rows_of_either_optimizer(growth_script):
+    from a3c_runtime.hogwild import SharedAdam, SharedRMSprop
+
+    params = [torch.zeros(4, 2)]
+    rmsprop, adam = (
+        SharedRMSprop(params, 0.99, 0.1, initial=1.0),
+        SharedAdam(params, 0.9, 0.99, 0.1),
+    )
+    for statistic in (rmsprop.square_avg[0], adam.exp_avg[0], adam.exp_avg_sq[0]):
+        statistic.fill_(7.0)
+    growth_script.restart_statistics(rmsprop, 0, [1, 3])
+    growth_script.restart_statistics(adam, 0, [2])
+    assert rmsprop.square_avg[0][:, 0].tolist() == [7.0, 1.0, 7.0, 1.0]  # back to its initial 1
+    assert adam.exp_avg[0][:, 0].tolist() == adam.exp_avg_sq[0][:, 0].tolist() == [7, 7, 0, 7]
+
+
+def test_growth_rounds_survive_a_resume(growth_script):
     """The last growth step is in the network's state (so in the checkpoint): a run resumed
     from a checkpoint taken past a boundary whose step has not run yet runs it at once, and one
     resumed after a step does not repeat it."""
@@ -271,6 +299,7 @@ def test_growth_rounds_survive_a_resume(script):
         optimizer = SharedRMSprop(params, 0.99, 0.1, initial=0.0)
         return types.SimpleNamespace(model=model, params=params, optimizer=optimizer)
 
+    script = growth_script
     torch.manual_seed(0)
     model, args = growth_network(script, growth_ratio=1e-6, growth_interval=100, seed=2)
     script.maintain_prototypes(shared_for(model), args, 0)
@@ -288,18 +317,25 @@ def test_growth_rounds_survive_a_resume(script):
 
 
 # ---------------------------------------------------------------------------------------------
-# Online local weight sharing: --lws-centroid-source online
+# Online local weight sharing (a3c_lws_online.py)
 # ---------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def lws():
     return load_script("a3c_lws")
 
 
-def test_per_sample_similarity_by_hand(lws):
+@pytest.fixture(scope="module")
+def online_lws():
+    return load_script("a3c_lws_online")
+
+
+def test_per_sample_similarity_by_hand(lws, online_lws):
     """Two samples with their own centroids: each sample's weights are the static formula's
-    for its centroids. Group-wise, S = 2, a 3x3 grid (0, 0.5, 1), Sigma = I."""
-    args = lws.Args(lws_kcps=2, lws_centroids="group")
-    layer = lws.LWSConv2d(4, 1, 3, 3, 9, args, torch.Generator().manual_seed(0))
+    (a3c_lws.py's) for its centroids. Group-wise, S = 2, a 3x3 grid (0, 0.5, 1), Sigma = I."""
+    args = online_lws.Args(lws_kcps=2, lws_centroids="group")
+    layer = online_lws.LWSConv2d(4, 1, 3, 3, 9, args, torch.Generator().manual_seed(0))
+    static = lws.LWSConv2d(4, 1, 3, 3, 9, lws.Args(lws_kcps=2, lws_centroids="group"),
+                           torch.Generator().manual_seed(0))  # fmt: skip
     centroids = torch.tensor([[[[0.0, 0.0]], [[1.0, 1.0]]], [[[0.5, 0.5]], [[0.0, 1.0]]]])
     weights = layer.compute_similarity_weights(centroids)  # (B, H, W, S, maps)
     assert weights.shape == (2, 3, 3, 2, 1)
@@ -309,25 +345,27 @@ def test_per_sample_similarity_by_hand(lws):
     assert weights[1, 2, 0, 0, 0].item() == pytest.approx(1 / (1 + math.exp(-1.5)), rel=1e-6)
     for b in range(2):
         with torch.no_grad():
-            layer.centroids.copy_(centroids[b])
-        torch.testing.assert_close(weights[b], layer.compute_similarity_weights())
+            static.centroids.copy_(centroids[b])
+        torch.testing.assert_close(weights[b], static.compute_similarity_weights())
 
 
-def online_and_static(lws, **flags):
+def online_and_static(lws, online_lws, **flags):
+    import a3c_runtime
+
     import catch_env  # noqa: F401
 
     nets = []
-    for source in ("static", "online"):
+    for script in (lws, online_lws):
         torch.manual_seed(0)
-        args = lws.resolve_defaults(lws.Args(lws_centroid_source=source, **flags))
-        nets.append(lws.ActorCritic(3, args))
+        args = a3c_runtime.resolve_defaults(script.Args(**flags))
+        nets.append(script.ActorCritic(3, args))
     return nets
 
 
-def test_online_centroids_start_at_the_static_ones(lws):
+def test_online_centroids_start_at_the_static_ones(lws, online_lws):
     """At initialisation every sample's predicted centroids are the static initial ones (grid:
     1/3 and 2/3), so the online network computes what the static one does."""
-    static, online = online_and_static(lws, lws_kcps=4, lws_centroid_init="grid")
+    static, online = online_and_static(lws, online_lws, lws_kcps=4, lws_centroid_init="grid")
     online.load_state_dict(static.state_dict(), strict=False)  # the same kernels and heads
     obs = torch.randint(0, 256, (3, 4, 84, 84), dtype=torch.uint8)
     for first, second in zip(static(obs), online(obs), strict=True):
@@ -338,8 +376,8 @@ def test_online_centroids_start_at_the_static_ones(lws):
         torch.testing.assert_close(centroids, layer.centroids.expand_as(centroids))
 
 
-def test_online_centroids_depend_on_the_input_and_learn(lws):
-    _, online = online_and_static(lws)
+def test_online_centroids_depend_on_the_input_and_learn(lws, online_lws):
+    _, online = online_and_static(lws, online_lws)
     assert not any(isinstance(layer.centroids, torch.nn.Parameter) for layer in online.lws_layers)
     obs = torch.randint(0, 256, (4, 4, 84, 84), dtype=torch.uint8)
     log_probs, values = online(obs)
@@ -355,57 +393,82 @@ def test_online_centroids_depend_on_the_input_and_learn(lws):
     assert ((first > 0) & (first < 1)).all()  # frames in [0, 1]: the sigmoids not saturated
 
 
-def test_static_lws_is_unchanged_by_the_flag(lws):
-    static, _ = online_and_static(lws)
-    assert not hasattr(static, "centroid_predictor")
-    assert all(layer.sample_centroids is None for layer in static.lws_layers)
-    assert all(isinstance(layer.centroids, torch.nn.Parameter) for layer in static.lws_layers)
+# ---------------------------------------------------------------------------------------------
+# Checkpoints of the thesis scripts' old flags, and end to end
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("thesis", "flag", "value", "owner"),
+    [
+        ("a3c_lpq", "prototype_growth", True, "a3c_lpq_growth"),
+        ("a3c_glpq", "value_head", "prototypes", "a3c_glpq_value_head"),
+        ("a3c_glpq", "prototype_init", "data", "a3c_glpq_data_init"),
+        ("a3c_lws", "lws_centroid_source", "online", "a3c_lws_online"),
+    ],
+)
+def test_a_checkpoint_of_an_old_flag_belongs_to_its_script(
+    tmp_path, monkeypatch, capsys, thesis, flag, value, owner
+):
+    """A checkpoint the thesis script wrote when the idea was its flag: the thesis script
+    refuses it with one line naming the idea's script, which plays it."""
+    from dataclasses import asdict
+
+    import a3c_runtime
+    from conftest import shared_for, tiny_args
+
+    module = load_script(owner)
+    args = tiny_args(module)
+    path = tmp_path / "checkpoint.pt"
+    a3c_runtime.save_checkpoint(path, shared_for(module, args), args, 0.0, f"{thesis}.py")
+    checkpoint = torch.load(path, weights_only=False)
+    checkpoint["args"] = {**asdict(args), flag: value}  # as the old script stored its flags
+    torch.save(checkpoint, path)
+    code, err = main_exit(load_script(thesis), ["--evaluate", str(path)], monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert f"use python agents/future_work/{owner}.py" in err
+    loaded = a3c_runtime.load_checkpoint(str(path), module.AGENT)
+    a3c_runtime.load_network(module.AGENT.build_network(3, args), loaded, str(path))
+    new = tmp_path / "new.pt"  # and one the idea's script writes names it too
+    a3c_runtime.save_checkpoint(new, shared_for(module, args), args, 0.0, module.AGENT.script)
+    code, err = main_exit(load_script(thesis), ["--evaluate", str(new)], monkeypatch, capsys)
+    assert code == 2 and f"python agents/future_work/{owner}.py" in err
 
 
-# ---------------------------------------------------------------------------------------------
-# End to end, tiny budgets
-# ---------------------------------------------------------------------------------------------
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["a3c_lpq", "a3c_glpq"])
-def test_value_head_and_data_init_end_to_end(tmp_path, name):
-    flags = ["--value-head", "prototypes", "--prototype-init", "data"]
+@pytest.mark.parametrize("name", ["a3c_lpq_data_init", "a3c_glpq_value_head"])
+def test_value_head_and_data_init_end_to_end(tmp_path, monkeypatch, capsys, name):
     budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
-    result = run_script(name, *TINY, *budget, *flags, timeout=120)
-    assert result.returncode == 0, result.stderr
+    code, err = main_exit(load_script(name), [*TINY, *budget], monkeypatch, capsys)
+    assert code == 0, err
     assert evaluation_steps(tmp_path)[-1] >= 2000
-    # the value head is part of the network: a checkpoint resumes only with it
-    result = run_script(name, "--resume", str(tmp_path / "checkpoint.pt"), "--value-head",
-                        "linear", timeout=60)  # fmt: skip
-    assert result.returncode == 2
-    assert "--value-head linear differs from the run's prototypes" in result.stderr
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["a3c_lpq", "a3c_glpq"])
-def test_prototype_growth_end_to_end(tmp_path, name):
-    flags = ["--prototype-growth", "--growth-interval", "500", "--growth-ratio", "1e-6"]
+@pytest.mark.parametrize("name", ["a3c_lpq_growth", "a3c_glpq_growth"])
+def test_prototype_growth_end_to_end(tmp_path, monkeypatch, capsys, name):
+    flags = ["--growth-interval", "500", "--growth-ratio", "1e-6"]
     budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
-    result = run_script(name, *TINY, *budget, *flags, timeout=120)
-    assert result.returncode == 0, result.stderr
-    assert "prototype growth at step" in result.stdout
+    module = load_script(name)
+    code, _ = main_exit(module, [*TINY, *budget, *flags], monkeypatch, capsys)
+    assert code == 0
     assert evaluation_steps(tmp_path)[-1] >= 2000
     # the checkpoint holds the last growth step; a resumed run goes on from the next one
     checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
     done = int(checkpoint["model"]["growth_round"])
     assert done == checkpoint["global_step"] // 500 >= 4
-    result = run_script(name, "--resume", str(tmp_path / "checkpoint.pt"), "--total-timesteps",
-                        "3000", timeout=120)  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    assert "prototype growth at step" in result.stdout
+    resume = ["--resume", str(tmp_path / "checkpoint.pt"), "--total-timesteps", "3000"]
+    code, _ = main_exit(module, resume, monkeypatch, capsys)
+    assert code == 0
     checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
     assert int(checkpoint["model"]["growth_round"]) == 6  # 2,500 and 3,000
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("envs", ["1", "4"])  # K = 4: the activation replay's path
-def test_online_lws_end_to_end(tmp_path, envs):
-    flags = ["--lws-centroid-source", "online", "--envs-per-worker", envs]
+def test_online_lws_end_to_end(tmp_path, monkeypatch, capsys, envs):
+    flags = ["--envs-per-worker", envs]
     budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
-    result = run_script("a3c_lws", *TINY, *budget, *flags, timeout=120)
-    assert result.returncode == 0, result.stderr
+    code, err = main_exit(
+        load_script("a3c_lws_online"), [*TINY, *budget, *flags], monkeypatch, capsys
+    )
+    assert code == 0, err
     assert evaluation_steps(tmp_path)[-1] >= 2000

@@ -1,15 +1,15 @@
-"""agents/plot_evaluations.py draws a PNG from evaluations.csv and reports reaching a threshold."""
+"""a3c_tools.plot_evaluations draws a PNG from evaluations.csv and reports reaching a threshold."""
 
 import subprocess
 import sys
 from pathlib import Path
 
-SCRIPT = Path(__file__).resolve().parents[1] / "agents" / "plot_evaluations.py"
+SCRIPT = ["-m", "a3c_tools.plot_evaluations"]
 HEADER = "global_step,wall_time_s,mean_return,std_return,episodes\n"
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, *SCRIPT, *args], capture_output=True, text=True)
 
 
 def test_plot_writes_png_and_reports_threshold(tmp_path):

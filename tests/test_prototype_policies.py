@@ -7,6 +7,7 @@ import math
 import subprocess
 from pathlib import Path
 
+import a3c_runtime as runtime
 import numpy as np
 import pytest
 import torch
@@ -367,7 +368,7 @@ def test_fixed_and_trainable_temperature_and_the_loss_correction(glpq):
 )
 def test_bad_head_flags_are_usage_errors(lpq, glpq, name, flags):
     module = both(lpq, glpq)[name]
-    with pytest.raises(module.UsageError):
+    with pytest.raises(runtime.UsageError):
         module.ActorCritic(3, module.Args(**flags))
 
 
@@ -553,7 +554,7 @@ def test_trainable_tau_as_run_and_the_loss_scope_flags(glpq):
     assert log_form.log_tau.exp().item() == pytest.approx(0.5 * math.log(18), rel=1e-6)
     assert glpq.ActorCritic(3, glpq.Args(temperature="fixed")).tau() == 1.0
     for flags in ({"temperature": "trainable", "p_start": 0.2}, {"tau": -1.0}):
-        with pytest.raises(glpq.UsageError):
+        with pytest.raises(runtime.UsageError):
             glpq.ActorCritic(3, glpq.Args(**{"temperature": "fixed", **flags}))
 
 

@@ -1,39 +1,56 @@
-"""Copy drift: each variant is a3c_ff.py plus its idea. Every top-level definition of a3c_ff.py
-(imports, functions, classes, constants, main) must be in each variant unchanged, except the
-variant's allowed names: its network, NETWORK_ARGS, its flags (Args may only add fields; a3c_ff's
-fields stay as they are) and, for the variants that change the loop, the worker. New
-definitions (layers, heads, losses) are free. A fix to shared code is thus made in a3c_ff.py and
-every variant, or it fails here."""
+"""Copy drift: each script is the script it extends plus its idea. Every top-level definition of
+the base (imports, functions, classes, constants, main) must be in the derived script unchanged,
+except the derived script's allowed names: its network, NETWORK_ARGS, its flags (Args may only
+add fields; the base's fields stay as they are) and, where the idea needs it, the worker or a
+named function. New definitions (layers, heads, losses) are free. A fix to shared code is thus
+made in a3c_ff.py and every copy, or it fails here. Chapter 8's ideas (agents/future_work/) are
+held against the thesis script each extends, and an idea built on both LPQ and GLPQ is held
+alike in the two."""
 
 import ast
 
 import pytest
-from conftest import AGENTS
+from conftest import SCRIPT_PATHS
 
 NETWORK = {"ActorCritic", "NETWORK_ARGS", "Args"}
-ALLOWED = {
-    "a3c_lws": NETWORK,
+FUTURE = NETWORK | {"AGENT"}  # AGENT: the script's name, future_work/<file>
+# (base, derived): the names the derived script may change. "Args.<field>": a field it may change.
+PAIRS = {
+    ("a3c_ff", "a3c_lws"): NETWORK,
     # AGENT: the value --conv-layout had in checkpoints from before the flag
-    "a3c_ss": NETWORK | {"AGENT"},
-    "a3c_ww": NETWORK | {"AGENT"},
-    "a3c_lstm": NETWORK | {"worker"},  # the recurrent state through the rollout
-    # AGENT: initialize, for --prototype-init data
-    "a3c_lpq": NETWORK | {"AGENT"},
-    "a3c_glpq": NETWORK | {"AGENT", "worker"},  # the tau schedule's progress and the 1/tau loss
+    ("a3c_ff", "a3c_ss"): NETWORK | {"AGENT"},
+    ("a3c_ff", "a3c_ww"): NETWORK | {"AGENT"},
+    ("a3c_ff", "a3c_lstm"): NETWORK | {"worker"},  # the recurrent state through the rollout
+    ("a3c_ff", "a3c_lpq"): NETWORK,
+    ("a3c_ff", "a3c_glpq"): NETWORK | {"worker"},  # the tau schedule's progress, the 1/tau loss
+    # GLPQ against LPQ: eq. 7.10 in place of eq. 7.9, no inverse distance (mu needs d >= 0)
+    ("a3c_lpq", "a3c_glpq"): NETWORK
+    | {"worker", "prototype_distances", "lpq_log_policy", "nearest_prototypes", "Args.distance"},
+    ("a3c_lpq", "a3c_lpq_value_head"): FUTURE,
+    ("a3c_glpq", "a3c_glpq_value_head"): FUTURE,
+    ("a3c_lpq", "a3c_lpq_data_init"): FUTURE | {"Args.prototype_init"},
+    ("a3c_glpq", "a3c_glpq_data_init"): FUTURE | {"Args.prototype_init"},
+    ("a3c_lpq", "a3c_lpq_growth"): FUTURE | {"worker"},  # worker 0's growth step
+    ("a3c_glpq", "a3c_glpq_growth"): FUTURE | {"worker", "glpq_log_policy"},  # the free slots
+    ("a3c_lws", "a3c_lws_online"): FUTURE | {"LWSConv2d"},  # per-sample centroids
 }
+# the same idea on LPQ and on GLPQ: what it adds to its base is the same in both
+IDEAS = [("a3c_lpq", "a3c_glpq", idea) for idea in ("value_head", "data_init", "growth")]
 
 
-def top_level(name: str) -> dict[str, str]:
-    """The script's top-level statements by name, each as its AST dump (comments and layout
-    do not count)."""
-    tree = ast.parse((AGENTS / f"{name}.py").read_text())
+def top_level(name: str) -> dict[str, ast.AST]:
+    """The script's top-level statements by name (comments and layout do not count). An import
+    `from m import (a, b)` is keyed by its module, so that a script may import more names."""
+    tree = ast.parse(SCRIPT_PATHS[name].read_text())
     blocks = {}
     for node in tree.body:
         if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
             key = node.name
         elif isinstance(node, ast.Assign):
             key = ",".join(ast.unparse(t) for t in node.targets)
-        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+        elif isinstance(node, ast.ImportFrom):
+            key = f"from {node.module}"
+        elif isinstance(node, ast.Import):
             key = f"import {ast.unparse(node)}"
         elif isinstance(node, ast.If):
             key = f"if {ast.unparse(node.test)}"
@@ -54,37 +71,69 @@ def args_fields(node: ast.ClassDef) -> dict[str, str]:
     return fields
 
 
-@pytest.mark.parametrize("variant", sorted(ALLOWED))
-def test_variant_changes_only_its_network_flags_and_loop(variant):
-    ff, other = top_level("a3c_ff"), top_level(variant)
-    drift = []
-    for key, node in ff.items():
-        if key not in other:
-            drift.append(f"{key}: missing (the variants keep every a3c_ff definition)")
+def imported(node: ast.ImportFrom) -> set[str]:
+    return {alias.name for alias in node.names}
+
+
+def drift(base: str, derived: str, allowed: set[str]) -> list[str]:
+    ours, theirs = top_level(base), top_level(derived)
+    found = []
+    for key, node in ours.items():
+        if key not in theirs:
+            if key not in allowed:
+                found.append(f"{key}: missing (a copy keeps every definition of {base})")
         elif key == "Args":
-            ours, theirs = args_fields(node), args_fields(other[key])
-            for field, text in ours.items():
-                if theirs.get(field) != text:
-                    drift.append(f"Args.{field}: differs from a3c_ff's (a variant only adds)")
+            mine, other = args_fields(node), args_fields(theirs[key])
+            for field, text in mine.items():
+                if other.get(field) != text and f"Args.{field}" not in allowed:
+                    found.append(f"Args.{field}: differs from {base}'s (a copy only adds)")
             if ast.dump(ast.Module(node.decorator_list, [])) != ast.dump(
-                ast.Module(other[key].decorator_list, [])
+                ast.Module(theirs[key].decorator_list, [])
             ):
-                drift.append("Args: decorators differ")
-        elif key not in ALLOWED[variant] and ast.dump(node) != ast.dump(other[key]):
-            drift.append(f"{key}: differs from a3c_ff's and is not {variant}'s to change")
-    assert not drift, f"{variant}.py drifted from a3c_ff.py:\n" + "\n".join(drift)
+                found.append("Args: decorators differ")
+        elif isinstance(node, ast.ImportFrom):
+            lost = imported(node) - imported(theirs[key])
+            if lost or node.level != theirs[key].level:
+                found.append(f"{key}: lost {sorted(lost)} (a copy may only import more)")
+        elif key not in allowed and ast.dump(node) != ast.dump(theirs[key]):
+            found.append(f"{key}: differs from {base}'s and is not {derived}'s to change")
+    return found
+
+
+@pytest.mark.parametrize(("base", "derived"), sorted(PAIRS))
+def test_a_copy_changes_only_its_idea(base, derived):
+    found = drift(base, derived, PAIRS[base, derived])
+    assert not found, f"{derived}.py drifted from {base}.py:\n" + "\n".join(found)
+
+
+@pytest.mark.parametrize(("lpq", "glpq", "idea"), IDEAS)
+def test_an_idea_is_the_same_on_lpq_and_glpq(lpq, glpq, idea):
+    """What agents/future_work/a3c_lpq_<idea>.py adds to a3c_lpq.py (its new definitions) is
+    what a3c_glpq_<idea>.py adds to a3c_glpq.py, line for line."""
+    added = {
+        key: node
+        for key, node in top_level(f"{lpq}_{idea}").items()
+        if key not in top_level(lpq) and key not in NETWORK
+    }
+    assert added, "the idea adds no definition"
+    other = top_level(f"{glpq}_{idea}")
+    differ = [key for key, node in added.items() if ast.dump(node) != ast.dump(other.get(key))]
+    assert not differ, f"{idea}: {differ} differ between the LPQ and GLPQ scripts"
+
+
+def test_every_script_is_held_by_the_drift_check():
+    derived = {d for _, d in PAIRS}
+    assert set(SCRIPT_PATHS) - derived == {"a3c_ff"}, "a script no drift pair holds"
 
 
 def test_the_drift_check_sees_a_changed_line(tmp_path, monkeypatch):
     """The check itself: a one-token change in a shared function is reported."""
-    import conftest
-
-    source = (AGENTS / "a3c_ss.py").read_text()
+    source = SCRIPT_PATHS["a3c_ss"].read_text()
     changed = source.replace("returns[t] = g", "returns[t] = g * 1.0")
     assert changed != source
     (tmp_path / "a3c_ss.py").write_text(changed)
-    (tmp_path / "a3c_ff.py").write_text((AGENTS / "a3c_ff.py").read_text())
-    monkeypatch.setattr(conftest, "AGENTS", tmp_path)
-    monkeypatch.setitem(globals(), "AGENTS", tmp_path)
-    with pytest.raises(AssertionError, match="n_step_returns: differs"):
-        test_variant_changes_only_its_network_flags_and_loop("a3c_ss")
+    monkeypatch.setitem(SCRIPT_PATHS, "a3c_ss", tmp_path / "a3c_ss.py")
+    assert any(
+        line.startswith("n_step_returns: differs")
+        for line in drift("a3c_ff", "a3c_ss", PAIRS["a3c_ff", "a3c_ss"])
+    )

@@ -1,4 +1,4 @@
-"""Tests of agents/sweep.py and agents/plot_sweep.py.
+"""Tests of agents/a3c_tools/sweep.py and agents/a3c_tools/plot_sweep.py.
 
 Most use a fake agent script written into tmp_path (no torch, a fraction of a second per run):
 it writes an evaluations.csv whose returns follow from its learning rate, fails above a learning
@@ -18,18 +18,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
-SWEEP = ROOT / "agents" / "sweep.py"
-PLOT = ROOT / "agents" / "plot_sweep.py"
+SWEEP = ["-m", "a3c_tools.sweep"]  # the tools, with this interpreter
+PLOT = ["-m", "a3c_tools.plot_sweep"]
 A3C = ROOT / "agents" / "a3c_ff.py"
 LR = "learning-rate=loguniform:1e-6:1e-2"
 CONFIG = {"samples": [LR], "fixed_flags": [], "seed": 1, "total_timesteps": None}
 
 
-sweep = load_script("sweep")
-plot_sweep = load_script("plot_sweep")
+from a3c_tools import plot_sweep as plot_sweep  # noqa: E402
+from a3c_tools import sweep as sweep  # noqa: E402
 
 FAKE_AGENT = textwrap.dedent(
     """
@@ -84,7 +83,7 @@ def fake_agent(tmp_path: Path) -> Path:
 
 def run_sweep(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, str(SWEEP), *args],
+        [sys.executable, *SWEEP, *args],
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -367,7 +366,7 @@ def test_interrupted_sweep_records_nothing_half_done_and_reruns(fake_agent, tmp_
     hold.touch()
     command = [
         sys.executable,
-        str(SWEEP),
+        *SWEEP,
         str(fake_agent),
         "--out",
         str(out),
@@ -396,7 +395,7 @@ def test_interrupted_sweep_records_nothing_half_done_and_reruns(fake_agent, tmp_
         assert (out / "runs" / run_id / f"attempt-{pid}").exists()
 
     hold.unlink()
-    result = run_sweep(*command[2:])
+    result = run_sweep(*command[3:])
     assert result.returncode == 0, result.stderr
     assert [r["status"] for r in read_table(out)] == ["ok"] * 3
     assert sorted(run_id for run_id, _ in starts(fake_agent)) == [
@@ -415,7 +414,7 @@ def test_a_second_sweep_in_the_same_folder_is_refused(fake_agent, tmp_path):
     hold.touch()
     args = [str(fake_agent), "--out", str(tmp_path / "out"), "--runs", "1", "--sample", LR, "--",
             "--hold", str(hold)]  # fmt: skip
-    first = subprocess.Popen([sys.executable, str(SWEEP), *args], stdout=subprocess.DEVNULL,
+    first = subprocess.Popen([sys.executable, *SWEEP, *args], stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)  # fmt: skip
     wait_for_starts(fake_agent, 1)
     second = run_sweep(*args)
@@ -430,7 +429,7 @@ def test_killed_sweep_takes_its_runs_with_it(fake_agent, tmp_path):
     hold.touch()
     command = [
         sys.executable,
-        str(SWEEP),
+        *SWEEP,
         str(fake_agent),
         "--out",
         str(tmp_path / "out"),
@@ -539,7 +538,7 @@ def test_plot_writes_a_png_and_the_table(fake_agent, tmp_path):
     png = tmp_path / "sweep.png"
     result = subprocess.run(
         # -o, as the README writes it
-        [sys.executable, str(PLOT), *tables, "--labels", "FF", "GLPQ", "-o", str(png)],
+        [sys.executable, *PLOT, *tables, "--labels", "FF", "GLPQ", "-o", str(png)],
         capture_output=True,
         text=True,
         cwd=ROOT,

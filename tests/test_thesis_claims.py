@@ -1,4 +1,4 @@
-"""Tests of agents/thesis_claims.py (docs/claims.md from the committed results): the page holds
+"""Tests of a3c_tools.thesis_claims (docs/claims.md from the committed results): the page holds
 what the script makes of the data, the verdict rule on hand-made intervals, the paired bootstrap
 against known samples, and the handling of lines not run yet."""
 
@@ -8,16 +8,15 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import AGENTS, ROOT, load_script
-
-claims = load_script("thesis_claims")
+from a3c_tools import thesis_claims as claims  # noqa: E402
+from conftest import ROOT
 
 
 def test_the_claims_page_holds_what_the_committed_results_give():
     with open(claims.CLAIMS, "rb") as f:
         page = claims.render(claims.tomllib.load(f))
     assert (ROOT / "docs" / "claims.md").read_text() == page, (
-        "docs/claims.md is stale: python agents/thesis_claims.py -o docs/claims.md"
+        "docs/claims.md is stale: python -m a3c_tools.thesis_claims -o docs/claims.md"
     )
 
 
@@ -25,7 +24,7 @@ def test_the_check_option_fails_on_a_stale_page(tmp_path):
     stale = tmp_path / "claims.md"
     stale.write_text("# an old page\n")
     done = subprocess.run(
-        [sys.executable, str(AGENTS / "thesis_claims.py"), "--check", str(stale)],
+        [sys.executable, "-m", "a3c_tools.thesis_claims", "--check", str(stale)],
         capture_output=True, text=True,
     )  # fmt: skip
     assert done.returncode == 1 and "is stale" in done.stdout

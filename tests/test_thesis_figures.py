@@ -1,5 +1,5 @@
-"""Tests of agents/thesis_figures.py (every thesis Catch figure as one command), of its data file
-agents/thesis_figures.toml, and of agents/plot_sweep.py's --reference option.
+"""Tests of a3c_tools.thesis_figures (every thesis Catch figure as one command), of its data file
+agents/a3c_tools/thesis_figures.toml, and of a3c_tools.plot_sweep's --reference option.
 
 Every line's flags are parsed by its own script (tyro), which then resolves its defaults and
 builds its network, so that a flag a script lacks, or a network it cannot build, fails here
@@ -12,25 +12,26 @@ import csv
 import dataclasses
 import re
 import shlex
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import a3c_runtime as runtime
 import pytest
 from conftest import AGENTS, ROOT, load_script
 
-TOOL = AGENTS / "thesis_figures.py"
+TOOL = ["-m", "a3c_tools.thesis_figures"]
 REQUIRED = ["fig6.3", "fig6.5", "fig6.6", "fig6.7", "fig6.8", "fig7.1", "fig7.2", "fig7.3",
             "fig7.5", "fig7.6", "fig7.7", "figA.1", "figA.2", "figA.3", "figC.1"]  # fmt: skip
 # set by the sweep for each run, or by thesis_figures.py for every line
 NOT_LINE_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "evaluate",
                   "eval-interval", "num-workers", "learning-rate"}  # fmt: skip
 
-figures = load_script("thesis_figures")
-sweep = load_script("sweep")
-plot_sweep = load_script("plot_sweep")
-LINES = [(figure, line) for figure in figures.FIGURES for line in figure.lines]
+from a3c_tools import plot_sweep as plot_sweep  # noqa: E402
+from a3c_tools import sweep as sweep  # noqa: E402
+from a3c_tools import thesis_figures as figures  # noqa: E402
+
+LINES = [(figure, line) for figure in figures.all_figures() for line in figure.lines]
 
 
 def agent(script: str):
@@ -42,9 +43,9 @@ def flag_names(argv: list[str]) -> list[str]:
     return [word[2:].split("=")[0] for word in argv if word.startswith("--")]
 
 
-def run_tool(*args: str, cwd: Path = ROOT, tool: Path = TOOL) -> subprocess.CompletedProcess:
+def run_tool(*args: str, cwd: Path = ROOT, tool: list[str] = TOOL) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, str(tool), *args], capture_output=True, text=True, cwd=cwd, timeout=60
+        [sys.executable, *tool, *args], capture_output=True, text=True, cwd=cwd, timeout=60
     )
 
 
@@ -52,11 +53,11 @@ def run_tool(*args: str, cwd: Path = ROOT, tool: Path = TOOL) -> subprocess.Comp
 # The table
 # ------------------------------------------------------------------------------------------------
 def test_every_thesis_catch_figure_is_there():
-    assert list(figures.FIGURE_IDS) == REQUIRED
+    assert list(figures.figure_ids()) == REQUIRED
 
 
 def test_the_table_is_consistent():
-    for figure in figures.FIGURES:
+    for figure in figures.all_figures():
         slugs = [line.slug for line in figure.lines]
         labels = [line.label for line in figure.lines]
         assert len(set(slugs)) == len(slugs) and len(set(labels)) == len(labels), figure.id
@@ -83,7 +84,7 @@ def test_the_table_is_consistent():
                 plot.x in line.sample_names() for line in figure.lines
             ), figure.id
     # the one figure whose numbers the thesis gives
-    assert dict(figures.BY_ID["fig7.6"].numbers) == {
+    assert dict(figures.by_id("fig7.6").numbers) == {
         "A3C FF": 0.73,
         "GLPQ cold": 0.77,
         "GLPQ hot": 0.78,
@@ -120,7 +121,7 @@ def test_every_line_is_accepted_by_its_script(figure, line, capsys):
             assert args.temperature == value
         if word == "--vf-coef":
             assert args.vf_coef == float(value)
-    args = module.resolve_defaults(args)
+    args = runtime.resolve_defaults(args)
     module.ActorCritic(3, args)  # network-level errors (UsageError) surface here
 
 
@@ -242,24 +243,27 @@ def test_a_shared_line_has_the_configuration_of_the_line_it_names(figure, line):
     module = agent(line.script)
     common = ["--learning-rate", "1e-3", "--total-timesteps", "1000", "--seed", "3"]
     parsed = [
-        module.resolve_defaults(tyro.cli(module.Args, args=[*each.argv, *common]))
+        runtime.resolve_defaults(tyro.cli(module.Args, args=[*each.argv, *common]))
         for each in (line, other)
     ]
     assert parsed[0] == parsed[1]
 
 
-def test_a_malformed_data_file_stops_the_command_with_one_line(tmp_path):
-    """The command as a user runs it, beside a data file whose line lacks its script."""
-    agents = tmp_path / "agents"
-    agents.mkdir()
-    shutil.copy2(TOOL, agents / TOOL.name)
-    write_data(agents, 'script = "a3c_ff.py"\n', "", name="thesis_figures.toml")
-    result = run_tool("--list", cwd=tmp_path, tool=agents / TOOL.name)
-    assert result.returncode == 2 and result.stdout == ""
-    assert result.stderr == (
-        "thesis_figures.py: error: agents/thesis_figures.toml: figure fig6.7, line 1 (ReLU): "
-        "no script\n"
-    )
+def test_a_malformed_data_file_stops_the_command_with_one_line(tmp_path, monkeypatch, capsys):
+    """The command beside a data file whose line lacks its script: one line, exit 2; and
+    importing the tool reads nothing (the file is read on first use)."""
+    data = write_data(tmp_path, 'script = "a3c_ff.py"\n', "", name="thesis_figures.toml")
+    monkeypatch.setattr(figures, "DATA", data)
+    monkeypatch.setattr(figures.load_figures, "__defaults__", (data,))
+    figures.all_figures.cache_clear()
+    try:
+        assert figures.main(["--list"]) == 2
+    finally:
+        figures.all_figures.cache_clear()
+    out, err = capsys.readouterr()
+    assert out == ""
+    where = f"{figures.display(data)}: figure fig6.7, line 1 (ReLU)"
+    assert err == f"thesis_figures: error: {where}: no script\n"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -278,7 +282,7 @@ def test_figure_ids_are_read_loosely():
 def test_list_names_every_figure_line_and_flag():
     result = run_tool("--list")
     assert result.returncode == 0, result.stderr
-    for figure in figures.FIGURES:
+    for figure in figures.all_figures():
         assert f"{figure.id}  " in result.stdout
         for line in figure.lines:
             assert f"{line.label} [{line.slug}]: {line.script} {line.flags}" in result.stdout
@@ -295,22 +299,22 @@ def test_dry_run_prints_the_sweeps_and_creates_nothing(tmp_path):
     assert result.returncode == 0, result.stderr
     assert not out.exists()
     commands = [shlex.split(row) for row in result.stdout.splitlines() if row.startswith("python")]
-    figure = figures.BY_ID["fig7.6"]
+    figure = figures.by_id("fig7.6")
     assert len(commands) == len(figure.lines) + len(figure.plots)
     for command, line in zip(commands, figure.lines, strict=False):
-        assert command[1:3] == ["agents/sweep.py", f"agents/{line.script}"]
+        assert command[1:4] == ["-m", "a3c_tools.sweep", f"agents/{line.script}"]
         split = command.index("--")
-        own, fixed = command[3:split], command[split + 1 :]
+        own, fixed = command[4:split], command[split + 1 :]
         assert own[own.index("--out") + 1] == str(out / figures.folder(figure, line))
         assert own[own.index("--runs") + 1] == "2"
         assert own[own.index("--total-timesteps") + 1] == "1000"
         assert own[own.index("--sample") + 1] == "learning-rate=loguniform:1e-05:0.01"
         assert fixed == [*figures.run_as(figure, line)[1].argv, "--eval-interval", "50"]
         # and sweep.py accepts the command (its own dry run creates nothing either)
-        assert sweep.main([command[2], "--dry-run", *command[3:]]) == 0
+        assert sweep.main([command[3], "--dry-run", *command[4:]]) == 0
     assert not out.exists()
     plot = commands[-1]
-    assert plot[1] == "agents/plot_sweep.py"
+    assert plot[1:3] == ["-m", "a3c_tools.plot_sweep"]
     assert plot[plot.index("--out") + 1] == str(out / "fig7.6" / "fig7.6.png")
     assert "A3C FF=0.73" in plot and "GLPQ searing=0.81" in plot
 
@@ -321,7 +325,7 @@ def test_dry_run_prints_a_shared_sweep_once():
     result = run_tool("--dry-run", "all", "--runs", "2", "--steps", "1000", "--out", "x")
     assert result.returncode == 0, result.stderr
     rows = result.stdout.splitlines()
-    sweeps = [row for row in rows if row.startswith("python agents/sweep.py")]
+    sweeps = [row for row in rows if row.startswith("python -m a3c_tools.sweep")]
     repeats = [row.removeprefix("# (the sweep above) ") for row in rows if "sweep above" in row]
     assert repeats, "some figures share a line (A3C FF's is in most of them)"
     assert len(sweeps) == len(set(sweeps))
@@ -335,9 +339,9 @@ def test_samples_come_after_the_learning_rate(tmp_path):
     with open(reproduction, newline="") as f:
         first = {row["run_id"]: (row["learning-rate"], row["seed"]) for row in csv.DictReader(f)}
     result = run_tool("--dry-run", "figA.1", "--runs", "8", "--steps", "250000", "--out", "x")
-    command = shlex.split(next(r for r in result.stdout.splitlines() if "sweep.py" in r))
+    command = shlex.split(next(r for r in result.stdout.splitlines() if "a3c_tools.sweep" in r))
     split = command.index("--")
-    samples = [command[i + 1] for i in range(3, split) if command[i] == "--sample"]
+    samples = [command[i + 1] for i in range(4, split) if command[i] == "--sample"]
     assert samples == ["learning-rate=loguniform:1e-05:0.01", "grad-clip=loguniform:0.5:40"]
     config = {"samples": samples, "fixed_flags": command[split + 1 :], "seed": 1}
     runs = sweep.plan_runs({**config, "total_timesteps": 250000}, 8)
@@ -385,7 +389,7 @@ def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch)
     calls = []
 
     def execute(command, capture=False):
-        if Path(command[0]).name == "plot_sweep.py":
+        if command[:2] == figures.PLOT:
             return real_execute(command, capture)
         own = command[: command.index("--")]
         runs = int(own[own.index("--runs") + 1])
@@ -400,8 +404,8 @@ def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch)
     assert figures.main(argv) == 0
     # A3C FF's runs are fig6.7's ReLU line's (same_as), swept in that line's folder
     slugs = [
-        Path(figures.folder(figures.BY_ID["fig7.6"], line)).name
-        for line in figures.BY_ID["fig7.6"].lines
+        Path(figures.folder(figures.by_id("fig7.6"), line)).name
+        for line in figures.by_id("fig7.6").lines
     ]
     assert slugs[0] == "relu" and (out / "fig6.7" / "relu" / "results.csv").exists()
     assert calls == [(slug, 2) for slug in slugs] + [(slug, 3) for slug in slugs]
@@ -420,7 +424,7 @@ def test_a_shared_line_is_swept_once_per_round(tmp_path, monkeypatch):
     calls = []
 
     def execute(command, capture=False):
-        if Path(command[0]).name == "plot_sweep.py":
+        if command[:2] == figures.PLOT:
             return real_execute(command, capture)
         own = command[: command.index("--")]
         out = Path(own[own.index("--out") + 1])
@@ -492,7 +496,7 @@ def test_a_figure_with_a_joint_sample_is_drawn_against_each(tmp_path, monkeypatc
     real_execute = figures.execute
 
     def execute(command, capture=False):
-        if Path(command[0]).name == "plot_sweep.py":
+        if command[:2] == figures.PLOT:
             return real_execute(command, capture)
         own = command[: command.index("--")]
         samples = [own[i + 1] for i, word in enumerate(own) if word == "--sample"]

@@ -85,11 +85,13 @@ class Agent:
     - `checkpoint_defaults`: flags newer than some checkpoints, with the value those
       checkpoints' runs had where it is not the flag's default (e.g. SS's --conv-layout: final
       before it existed);
-    - `initialize(network, args)` (optional): sets a new run's global network from data before
-      the workers start (LPQ's --prototype-init data); not called when resuming;
-    - `maintain(shared, args, global_step)` (optional): called by the main process about every
-      0.1 s while the workers train, for upkeep of the global network that is part of the
-      algorithm but no worker's (LPQ's --prototype-growth); it decides itself when to act.
+    - `initialize(network, args)` (optional): sets a new run's global network before the
+      workers start, for an initialisation that needs the env or data (e.g. prototypes placed on
+      the features of random play, agents/future_work/a3c_lpq_data_init.py); not called when
+      resuming, where the checkpoint's network is the run's.
+
+    Anything else a variant needs (upkeep of the shared network during training, say) is the
+    script's own: its worker holds `shared`, and worker 0 can do what one process must do.
     """
 
     script: str
@@ -100,7 +102,6 @@ class Agent:
     worker: Callable[..., None]
     checkpoint_defaults: dict[str, Any] = field(default_factory=dict)
     initialize: Callable[[nn.Module, Any], None] | None = None
-    maintain: Callable[[Any, Any, int], None] | None = None
 
     def trained_args(self, checkpoint: dict) -> dict[str, Any]:
         """The flags a checkpoint was trained with; a flag it predates has its

@@ -131,8 +131,6 @@ def watch(
                 outcome = "done"
             elif args.time_limit is not None and now - log.start >= args.time_limit:
                 outcome = "time limit"
-            if agent.maintain is not None:
-                agent.maintain(shared, args, global_step)
             if global_step >= next_checkpoint:
                 save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script)
                 interval = args.checkpoint_interval
@@ -244,7 +242,8 @@ def run(agent: Any) -> int:
 def resume_hint(agent: Any, run_dir: Path) -> str:
     """The closing line of a run that ended before T_max: its surviving checkpoint, that
     checkpoint's step, and the command that resumes it (or, with none, starts it again)."""
-    script = sys.argv[0] if os.path.basename(sys.argv[0]) == agent.script else agent.script
+    named = os.path.basename(sys.argv[0]) == os.path.basename(agent.script)
+    script = sys.argv[0] if named else os.path.join("agents", agent.script)
     path = run_dir / "checkpoint.pt"
     step = checkpoint_step(path) if path.exists() else None
     if step is None:

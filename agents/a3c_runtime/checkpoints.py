@@ -19,6 +19,22 @@ from .flags import UsageError
 from .hogwild import Shared
 
 CHECKPOINT_FORMAT = "a3c-checkpoint-v1"  # "script" was added compatibly: older ones lack it
+# Chapter 8's ideas were flags of the thesis scripts before each became a script of its own in
+# agents/future_work/: a checkpoint an older thesis script wrote with one of them set belongs to
+# that script, which plays and resumes it; the thesis script refuses it, naming the script.
+MOVED_FLAGS = {
+    "a3c_lpq.py": {
+        ("value_head", "prototypes"): "future_work/a3c_lpq_value_head.py",
+        ("prototype_init", "data"): "future_work/a3c_lpq_data_init.py",
+        ("prototype_growth", True): "future_work/a3c_lpq_growth.py",
+    },
+    "a3c_glpq.py": {
+        ("value_head", "prototypes"): "future_work/a3c_glpq_value_head.py",
+        ("prototype_init", "data"): "future_work/a3c_glpq_data_init.py",
+        ("prototype_growth", True): "future_work/a3c_glpq_growth.py",
+    },
+    "a3c_lws.py": {("lws_centroid_source", "online"): "future_work/a3c_lws_online.py"},
+}
 
 
 def save_checkpoint(
@@ -84,7 +100,15 @@ def load_checkpoint(path: str, agent: Any) -> dict:
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         raise UsageError(f"{path!r} is not a checkpoint written by this script")
     script = checkpoint.get("script")  # absent before it was stored
-    if script and script != agent.script:
+    moved = moved_script(checkpoint)
+    if moved is not None:
+        owner, flag, value = moved
+        if owner != agent.script:
+            raise UsageError(
+                f"checkpoint {path!r} was trained by {script} with --{flag.replace('_', '-')} "
+                f"{value}, now a script of its own: use python agents/{owner}"
+            )
+    elif script and script != agent.script:
         raise UsageError(
             f"checkpoint {path!r} was written by {script}, not {agent.script}: "
             f"use python agents/{script}"
@@ -92,6 +116,16 @@ def load_checkpoint(path: str, agent: Any) -> dict:
     # (every script's network class is ActorCritic, so the stored "network" name tells nothing;
     # the script name above, or the tensors' shapes in load_network, refuse another's checkpoint)
     return checkpoint
+
+
+def moved_script(checkpoint: dict) -> tuple[str, str, Any] | None:
+    """(the future-work script, the flag, its value) of a checkpoint that a thesis script wrote
+    with a chapter-8 flag set (MOVED_FLAGS), else None."""
+    trained = checkpoint.get("args", {})
+    for (flag, value), owner in MOVED_FLAGS.get(checkpoint.get("script"), {}).items():
+        if trained.get(flag) == value:
+            return owner, flag, value
+    return None
 
 
 def load_network(model: nn.Module, checkpoint: dict, path: str) -> None:

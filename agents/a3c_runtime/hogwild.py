@@ -109,11 +109,6 @@ class SharedRMSprop:
         self.square_avg = [torch.full_like(p, initial).share_memory_() for p in params]
 
     @torch.no_grad()
-    def restart(self, index: int, rows: list[int]) -> None:
-        """The statistics of rows of parameter `index` as at the start (a re-used slot)."""
-        self.square_avg[index][rows] = self.initial
-
-    @torch.no_grad()
     def step(self, grads: list[torch.Tensor], lr: float) -> None:
         torch._foreach_mul_(self.square_avg, self.decay)
         torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
@@ -139,14 +134,6 @@ class SharedAdam:
         self.exp_avg = [torch.zeros_like(p).share_memory_() for p in params]
         self.exp_avg_sq = [torch.zeros_like(p).share_memory_() for p in params]
         self.step_count = torch.zeros(1, dtype=torch.float64).share_memory_()
-
-    @torch.no_grad()
-    def restart(self, index: int, rows: list[int]) -> None:
-        """The moments of rows of parameter `index` back to 0 (a re-used slot). Not exactly a
-        fresh start: the bias correction follows the shared step count, so those rows' first
-        steps are smaller than a new Adam's."""
-        self.exp_avg[index][rows] = 0.0
-        self.exp_avg_sq[index][rows] = 0.0
 
     @torch.no_grad()
     def step(self, grads: list[torch.Tensor], lr: float) -> None:

@@ -2,7 +2,8 @@
 
 Acting and learning run the same synced network theta' on the same states (Algorithm 1), so
 every Conv2d and Linear output of the learning forward was already computed while acting, one
-step at a time. `replay_activations(model, rollout_frames)`, called once before a worker's loop,
+step at a time. `replay_activations(model, rollout_frames, args)`, called once before a worker's
+loop where it pays,
 keeps them and hands them back, so the loop itself stays Algorithm 1 as written:
 
 - a forward of `model` without gradients (acting, in inference mode) on rows of `rollout_frames`
@@ -19,9 +20,10 @@ network (activations, LSTM cells, softmaxes, prototypes) is recomputed from the 
 outputs. A network's learning forward must call each layer on the rollout's rows in acting order
 (step-major, a Conv2d's inputs batched, a Linear's rows its leading dimensions), once per
 forward. Under --precision bf16-learn the replayed outputs are acting's fp32 ones and the
-backward runs in bf16. It pays on the fast setting (K = 16 envs per worker: 1.17x the steps/s,
-`benchmarks/a3c_throughput.py --replay on off`, results/throughput_package), and workers with
-K = 1 go without it.
+backward runs in bf16. Anything it cannot replay exactly (a layer called twice in one forward, a
+Conv2d or Linear subclass, non-zero or string padding, a learning forward over other rows than
+acting's, in another order, or after the weights changed) raises a RuntimeError naming it, at the
+latest at the first update. It runs only where it measured faster (replay_activations).
 """
 
 from __future__ import annotations
@@ -33,12 +35,18 @@ import torch
 import torch.nn as nn
 
 
-def replay_activations(model: nn.Module, rollout_frames: torch.Tensor) -> ActivationReplay | None:
+def replay_activations(
+    model: nn.Module, rollout_frames: torch.Tensor, args: Any
+) -> ActivationReplay | None:
     """Attach an ActivationReplay to model for forwards on rows of rollout_frames (t_max + 1, K,
-    ...), where it pays: with K > 1 envs per worker. With K = 1 the acting pass's copies cost
-    more than the update's forward saves (replay on against off, 3 rounds each: 17% faster at
-    K = 16, 1-5% slower at K = 1; results/throughput_package), so the model is left as it is."""
-    if rollout_frames.shape[1] == 1:
+    ...), where it pays: with K > 1 envs per worker on Catch, in bf16 or fp32. Measured on and
+    off in one run, 3 alternating rounds of 15 s each (results/replay_measurement, AMD EPYC):
+    K = 16 bf16 1.25x, K = 16 fp32 1.22x; under 5% elsewhere, so the model is left as it is
+    there: K = 16 bf16-learn 1.04x, K = 1 0.94-1.04x (acting's copies cost about what the
+    update's forward saves), Breakout K = 16 1.04x (the emulator's share of a step is large)."""
+    from catch_env.wrappers import is_atari
+
+    if args.envs_per_worker == 1 or args.precision == "bf16-learn" or is_atari(args.env):
         return None
     return ActivationReplay(model, rollout_frames)
 
@@ -52,16 +60,20 @@ class ActivationReplay:
         self.storage = rollout_frames.untyped_storage().data_ptr()
         self.mode: str | None = None  # "record", "replay" or None (plain layers)
         self.first_offset: int | None = None  # where this rollout's first acting state lies
+        self.next_offset: int | None = None  # where the next acting state must lie
+        self.acting_strides: tuple[int, ...] | None = None  # the layout of acting's frames
+        self.weight_versions: list[int] = []  # the replayed layers' weights while acting
+        self.problem: str | None = None  # an acting forward the replay cannot match
         self.layers: list[_ReplayedConv2d | _ReplayedLinear] = []
-        for layer in model.modules():
-            replayed = {nn.Conv2d: _ReplayedConv2d, nn.Linear: _ReplayedLinear}.get(type(layer))
-            if replayed is _ReplayedConv2d and (
-                not isinstance(layer.padding, tuple) or layer.padding_mode != "zeros"
-            ):
-                replayed = None  # "same"/"valid" or non-zero padding: computed as before
-            if replayed is not None:
-                layer.__class__ = replayed  # a subclass: only forward changes
+        for name, layer in model.named_modules():
+            name = name or type(model).__name__
+            if isinstance(layer, (nn.Conv2d, nn.Linear)):
+                check_supported(name, layer)
+                layer.__class__ = {nn.Conv2d: _ReplayedConv2d, nn.Linear: _ReplayedLinear}[
+                    type(layer)
+                ]  # a subclass: only forward changes
                 layer.replay, layer.recorded, layer.count, layer.cursor = self, None, 0, 0
+                layer.replay_name, layer.calls = name, 0
                 self.layers.append(layer)
         model.register_forward_pre_hook(self._before_forward)
         model.register_forward_hook(self._after_forward)
@@ -70,35 +82,82 @@ class ActivationReplay:
         frames = inputs[0] if inputs else None
         if not torch.is_tensor(frames) or frames.untyped_storage().data_ptr() != self.storage:
             self.mode = None
-        elif torch.is_grad_enabled():
-            if self.first_offset is not None and frames.storage_offset() != self.first_offset:
-                raise RuntimeError(
-                    "ActivationReplay: the learning forward must start at the rollout's first "
-                    "acting state"
-                )
+            return
+        for layer in self.layers:
+            layer.calls = 0
+        if torch.is_grad_enabled():
             self.mode = "replay"
+            if self.first_offset is not None:
+                self.check_learning_frames(frames)
             for layer in self.layers:
                 layer.cursor = 0
         else:
-            if self.first_offset is None:
-                self.first_offset = frames.storage_offset()
             self.mode = "record"
+            if self.first_offset is None:  # a new rollout's first acting step
+                self.first_offset, self.acting_strides = frames.storage_offset(), frames.stride()
+                self.weight_versions = [layer.weight._version for layer in self.layers]
+            elif frames.storage_offset() != self.next_offset or frames.stride() != (
+                self.acting_strides
+            ):
+                self.problem = "acting did not step through the rollout's rows in order"
+            self.next_offset = frames.storage_offset() + frames.shape[0] * frames.stride(0)
+
+    def check_learning_frames(self, frames: torch.Tensor) -> None:
+        """The learning forward must be over the states acting saw, in acting's order, with the
+        weights acting used; anything else would replay outputs of other inputs or weights."""
+        problem = self.problem
+        if problem is None and frames.storage_offset() != self.first_offset:
+            problem = "the learning forward must start at the rollout's first acting state"
+        elif problem is None and frames.stride() != self.acting_strides:
+            problem = "the learning forward's rows are not acting's rows in acting's order"
+        elif problem is None:
+            changed = [layer.replay_name for layer, version in
+                       zip(self.layers, self.weight_versions, strict=True)
+                       if layer.weight._version != version]  # fmt: skip
+            if changed:
+                problem = f"layer {changed[0]!r}'s weights changed between acting and learning"
+        if problem is not None:
+            self.reset()
+            raise RuntimeError(f"ActivationReplay: {problem}")
+
+    def reset(self) -> None:
+        """Forget this rollout's recording: the next acting forward starts a new one."""
+        self.mode, self.first_offset, self.next_offset, self.problem = None, None, None, None
+        for layer in self.layers:
+            layer.count = 0
 
     def _after_forward(self, _model: nn.Module, _inputs: Any, _output: Any) -> None:
-        replayed, self.mode = self.mode == "replay", None
+        replayed = self.mode == "replay"
+        self.mode = None
         if not replayed:
             return
         # the rollout is over: the next acting forward starts a new recording
         left = [(layer, layer.count - layer.cursor) for layer in self.layers]
-        self.first_offset = None
-        for layer in self.layers:
-            layer.count = 0
+        self.reset()
         for layer, rows in left:
             if rows:
                 raise RuntimeError(
-                    f"ActivationReplay: {rows} recorded rows of {layer} were not replayed; the "
-                    "learning forward must take the acting rows in order"
+                    f"ActivationReplay: {rows} recorded rows of layer {layer.replay_name!r} were "
+                    "not replayed; the learning forward must take the acting rows in order"
                 )
+
+
+def check_supported(name: str, layer: nn.Module) -> None:
+    """Raise for a Conv2d or Linear the replay cannot stand in for: a subclass (its own forward
+    would be bypassed) or a convolution whose padding is not zeros given as numbers."""
+    kind = "Conv2d" if isinstance(layer, nn.Conv2d) else "Linear"
+    if type(layer) not in (nn.Conv2d, nn.Linear):
+        reason = f"{type(layer).__name__} is a subclass of {kind}"
+    elif kind == "Conv2d" and not isinstance(layer.padding, tuple):
+        reason = f"its padding is {layer.padding!r}"
+    elif kind == "Conv2d" and layer.padding_mode != "zeros":
+        reason = f"its padding mode is {layer.padding_mode!r}"
+    else:
+        return
+    raise RuntimeError(
+        f"ActivationReplay: cannot replay layer {name!r}: {reason} (it replays exact nn.Conv2d "
+        "with numeric zero padding and nn.Linear); build the worker without replay_activations"
+    )
 
 
 class _Recording:
@@ -106,9 +165,11 @@ class _Recording:
     dimensions flattened), kept in a buffer that doubles when full and lives across rollouts."""
 
     replay: ActivationReplay
+    replay_name: str  # the layer's name in the model, for error messages
     recorded: torch.Tensor | None
     count: int  # rows recorded in this rollout
     cursor: int  # rows taken back by the replay so far
+    calls: int  # calls in the current forward (more than one is an error)
 
     def compute(self, x: torch.Tensor) -> torch.Tensor:
         """The layer's own forward."""
@@ -118,6 +179,13 @@ class _Recording:
         mode = self.replay.mode
         if mode is None:
             return super().forward(x)
+        self.calls += 1
+        if self.calls > 1:  # its rows would interleave: the replay would hand back the wrong ones
+            self.replay.reset()
+            raise RuntimeError(
+                f"ActivationReplay: layer {self.replay_name!r} is called more than once in one "
+                "forward; build the worker without replay_activations"
+            )
         if mode == "replay":
             return _Replay.apply(x, self.weight, self.bias, self)
         y = super().forward(x)

@@ -12,21 +12,20 @@ cd "$(dirname "$0")/../.."
 OUT=results/future_work_catch
 RUNS=${RUNS:-5}
 FAST=(--envs-per-worker 16 --num-workers 2)
-declare -A SCRIPT FLAGS
-SCRIPT[lpq]=a3c_lpq;             FLAGS[lpq]=""
-SCRIPT[lpq_value]=a3c_lpq;       FLAGS[lpq_value]="--value-head prototypes"
-SCRIPT[lpq_data]=a3c_lpq;        FLAGS[lpq_data]="--prototype-init data"
-SCRIPT[lpq_growth]=a3c_lpq;      FLAGS[lpq_growth]="--prototype-growth"
-SCRIPT[glpq]=a3c_glpq;           FLAGS[glpq]=""
-SCRIPT[glpq_value]=a3c_glpq;     FLAGS[glpq_value]="--value-head prototypes"
-SCRIPT[glpq_data]=a3c_glpq;      FLAGS[glpq_data]="--prototype-init data"
-SCRIPT[glpq_growth]=a3c_glpq;    FLAGS[glpq_growth]="--prototype-growth"
-SCRIPT[lws]=a3c_lws;             FLAGS[lws]=""
-SCRIPT[lws_online]=a3c_lws;      FLAGS[lws_online]="--lws-centroid-source online"
+declare -A SCRIPT  # each idea's script (agents/future_work/) against the thesis's
+SCRIPT[lpq]=a3c_lpq
+SCRIPT[lpq_value]=future_work/a3c_lpq_value_head
+SCRIPT[lpq_data]=future_work/a3c_lpq_data_init
+SCRIPT[lpq_growth]=future_work/a3c_lpq_growth
+SCRIPT[glpq]=a3c_glpq
+SCRIPT[glpq_value]=future_work/a3c_glpq_value_head
+SCRIPT[glpq_data]=future_work/a3c_glpq_data_init
+SCRIPT[glpq_growth]=future_work/a3c_glpq_growth
+SCRIPT[lws]=a3c_lws
+SCRIPT[lws_online]=future_work/a3c_lws_online
 ORDER=(glpq glpq_data glpq_value glpq_growth lpq lpq_data lpq_value lpq_growth lws lws_online)
 for name in "${@:-${ORDER[@]}}"; do
     [[ -n "${SCRIPT[$name]:-}" ]] || { echo "unknown configuration $name; valid: ${ORDER[*]}" >&2; exit 2; }
-    # shellcheck disable=SC2086
-    python agents/sweep.py "agents/${SCRIPT[$name]}.py" --out "$OUT/$name" --runs "$RUNS" \
-        --total-timesteps 1000000 -- "${FAST[@]}" ${FLAGS[$name]}
+    python -m a3c_tools.sweep "agents/${SCRIPT[$name]}.py" --out "$OUT/$name" --runs "$RUNS" \
+        --total-timesteps 1000000 -- "${FAST[@]}"
 done

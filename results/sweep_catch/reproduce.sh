@@ -21,13 +21,13 @@ STEPS=${STEPS:-250000}
 CONFIGS=(a3c_ff a3c_glpq a3c_lpq a3c_lws a3c_ss a3c_ww)
 for ((runs = 2; runs <= RUNS; runs += 2)); do
   for script in "${CONFIGS[@]}"; do
-    python agents/sweep.py "agents/$script.py" --out "$OUT/$script" --runs "$runs" \
+    python -m a3c_tools.sweep "agents/$script.py" --out "$OUT/$script" --runs "$runs" \
       --total-timesteps "$STEPS" --sample learning-rate=loguniform:1e-5:1e-2 \
       -- --eval-interval $((STEPS / 20))
   done
 done
 TABLES=()
 for script in "${CONFIGS[@]}"; do TABLES+=("$OUT/$script/results.csv"); done
-python agents/plot_sweep.py "${TABLES[@]}" --out "$OUT/sweep_catch.png" \
+python -m a3c_tools.plot_sweep "${TABLES[@]}" --out "$OUT/sweep_catch.png" \
   --labels "A3C FF" "GLPQ hot (corr.)" LPQ LWS SS WW \
   --title "Catch-v0 learning-rate sweeps, $STEPS steps per run, 1 worker"

@@ -31,7 +31,7 @@ declare -A LINES=(
 for name in "${!LINES[@]}"; do
   read -r script flags <<<"${LINES[$name]}"
   # shellcheck disable=SC2086  # the flags split into words
-  python agents/sweep.py "agents/$script.py" --out "$OUT/$name" --runs "$RUNS" \
+  python -m a3c_tools.sweep "agents/$script.py" --out "$OUT/$name" --runs "$RUNS" \
     --total-timesteps "$STEPS" --sample learning-rate=loguniform:1e-5:1e-2 \
     --cpus "$SWEEP_CPUS" -- --eval-interval $((STEPS / 20)) $flags &
 done

@@ -1,6 +1,7 @@
 """The future-work runs on Catch: a table of scores and a figure of learning curves.
 
-    cd results/future_work_catch && python summary.py > summary.txt
+    python -m a3c_tools.future_work_summary > results/future_work_catch/summary.txt
+    python -m a3c_tools.future_work_summary OTHER_FOLDER   # the same layout elsewhere
 
 Reads each configuration's results.csv (one row per run: its score, the mean of the final 5
 evaluations) and, where the per-run folders are still here (runs/, not committed), their
@@ -12,17 +13,16 @@ The paired comparisons with their intervals are on docs/claims.md.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import statistics
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from a3c_tools import ROOT
 
-HERE = Path(__file__).resolve().parent
+FOLDER = ROOT / "results" / "future_work_catch"
 # (panel title, [(baseline, variant), ...]): each idea against the thesis's version of its script
 PANELS = [
     ("prototype value head", [("lpq", "lpq_value"), ("glpq", "glpq_value")]),
@@ -36,25 +36,25 @@ FALL_BACK = 0.1  # print_fall_back: a score this far below the run's best evalua
 COLOURS = {"lpq": ("C0", "C1"), "glpq": ("C2", "C3"), "lws": ("C4", "C5")}
 
 
-def run_scores(config: str) -> dict[str, float]:
+def run_scores(folder: Path, config: str) -> dict[str, float]:
     """run_id -> score of the finished runs of one configuration ({} if none)."""
-    path = HERE / config / "results.csv"
+    path = folder / config / "results.csv"
     if not path.is_file():
         return {}
     with open(path, newline="") as f:
         return {r["run_id"]: float(r["score"]) for r in csv.DictReader(f) if r["status"] == "ok"}
 
 
-def gather_curves() -> list[dict[str, str]]:
+def gather_curves(folder: Path) -> list[dict[str, str]]:
     """Rows (config, run_id, global_step, mean_return), from runs/ or else from curves.csv."""
     saved: list[dict[str, str]] = []
-    if (HERE / "curves.csv").is_file():
-        with open(HERE / "curves.csv", newline="") as f:
+    if (folder / "curves.csv").is_file():
+        with open(folder / "curves.csv", newline="") as f:
             saved = list(csv.DictReader(f))
     rows = []
     for config in CONFIGS:
-        for run_id in sorted(run_scores(config)):
-            path = HERE / config / "runs" / run_id / "evaluations.csv"
+        for run_id in sorted(run_scores(folder, config)):
+            path = folder / config / "runs" / run_id / "evaluations.csv"
             if path.is_file():
                 with open(path, newline="") as f:
                     rows += [
@@ -64,14 +64,19 @@ def gather_curves() -> list[dict[str, str]]:
                     ]  # fmt: skip
             else:
                 rows += [r for r in saved if r["config"] == config and r["run_id"] == run_id]
-    with open(HERE / "curves.csv", "w", newline="") as f:
+    with open(folder / "curves.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, ["config", "run_id", "global_step", "mean_return"])
         writer.writeheader()
         writer.writerows(rows)
     return rows
 
 
-def plot(rows: list[dict[str, str]]) -> None:
+def plot(rows: list[dict[str, str]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True, sharey=True)
     for ax, (title, pairs) in zip(axes.flat, PANELS, strict=True):
         for config in dict.fromkeys(name for pair in pairs for name in pair):
@@ -104,14 +109,29 @@ def plot(rows: list[dict[str, str]]) -> None:
         ax.set_ylabel("mean evaluation return (50 episodes)")
     fig.suptitle("Catch-v0, the thesis's future work: 1M steps, 2 workers x 16 envs (n: runs)")
     fig.tight_layout()
-    fig.savefig(HERE / "curves.png", dpi=110)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m a3c_tools.future_work_summary",
+        description="The future-work runs' scores (stdout), curves.csv and curves.png.",
+    )
+    parser.add_argument(
+        "folder",
+        nargs="?",
+        type=Path,
+        default=FOLDER,
+        help="the configurations' folder (default results/future_work_catch)",
+    )
+    folder = parser.parse_args(argv).folder
+    if not folder.is_dir():
+        parser.error(f"{folder} is not a folder")
     print("| configuration | runs | score (final 5), mean +- s.e. over runs | runs' scores |")
     print("|---|---:|---|---|")
     for config in CONFIGS:
-        scores = run_scores(config)
+        scores = run_scores(folder, config)
         if not scores:
             print(f"| {config} | 0 | not run yet | |")
             continue
@@ -120,9 +140,10 @@ def main() -> None:
         listed = ", ".join(f"{v:.3f}" for v in values)
         mean = statistics.mean(values)
         print(f"| {config} | {len(values)} | {mean:.3f} +- {se:.3f} | {listed} |")
-    rows = gather_curves()
+    rows = gather_curves(folder)
     print_fall_back(rows)
-    plot(rows)
+    plot(rows, folder / "curves.png")
+    return 0
 
 
 def print_fall_back(rows: list[dict[str, str]]) -> None:
@@ -145,4 +166,4 @@ def print_fall_back(rows: list[dict[str, str]]) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

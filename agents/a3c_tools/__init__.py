@@ -1,0 +1,39 @@
+"""The tools around the agent scripts, apart from the algorithms (as CleanRL keeps its tools in
+`cleanrl_utils`). Each is a module run with `python -m a3c_tools.<tool>` from a clone of the
+repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
+
+- `sweep`: a script at sampled flags, many runs, locally or on a Ray cluster, resumable;
+- `plot_sweep`, `plot_evaluations`: the thesis-style figures of a sweep, a run's learning curve;
+- `thesis_figures`: a thesis Catch figure's lines, as run, through `sweep` and `plot_sweep`
+  (its figures are data: thesis_figures.toml);
+- `thesis_claims`: the claims page (docs/claims.md) from the committed results
+  (thesis_claims.toml);
+- `future_work_summary`, `future_work_initial_policy`, `future_work_trained_scale`,
+  `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch);
+- `training_scalars`: a run's TensorBoard training scalars by 1M steps.
+
+Nothing runs at import; the tools' own dependencies (matplotlib, scipy) are the `tools` extra.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+ROOT = Path(__file__).resolve().parents[2]  # the repository: the tools work on a clone
+AGENTS = ROOT / "agents"
+
+
+def load_script(path: Path | str) -> ModuleType:
+    """Import an agent script (agents/a3c_*.py, agents/future_work/a3c_*.py) as a module named
+    after its file, once per process: the scripts are run by path, not installed."""
+    path = Path(path)
+    if path.stem in sys.modules:
+        return sys.modules[path.stem]
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = module  # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module

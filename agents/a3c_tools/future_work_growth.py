@@ -1,0 +1,78 @@
+"""What the dynamic prototypes did in each run of a3c_lpq_growth.py and a3c_glpq_growth.py
+(agents/future_work/): its growth steps, prototypes pruned and grown.
+
+    python -m a3c_tools.future_work_growth > results/future_work_catch/growth.txt
+
+Reads the lines that a growth step which changes anything prints ("prototype growth at step
+...: pruned for actions [...], grown for [...]; active per action [...]") from each run's
+stdout.log (FOLDER/CONFIG/runs/, written by the sweep, not committed: run the configurations
+first).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import csv
+import re
+from pathlib import Path
+
+from a3c_tools import ROOT
+
+FOLDER = ROOT / "results" / "future_work_catch"
+CONFIGS = ("lpq_growth", "glpq_growth")
+LINE = re.compile(
+    r"prototype growth at step ([\d,]+): pruned for actions (\[[^\]]*\]), grown for (\[[^\]]*\]);"
+    r" active per action (\[[^\]]*\])"
+)
+HEADER = ("config       run       growth steps that changed something   pruned   grown   "
+          "active per action at the end (the defaults: 16 at the start, 32 slots)")  # fmt: skip
+
+
+def growth_rows(folder: Path) -> list[str]:
+    """One line per finished run of each growth configuration in folder."""
+    rows = []
+    for config in CONFIGS:
+        if not (folder / config / "results.csv").is_file():
+            continue
+        with open(folder / config / "results.csv", newline="") as f:
+            finished = sorted(r["run_id"] for r in csv.DictReader(f) if r["status"] == "ok")
+        for run_id in finished:
+            log = folder / config / "runs" / run_id / "stdout.log"
+            steps = [m for m in map(LINE.search, log.read_text().splitlines()) if m]
+            pruned = sum(len(ast.literal_eval(m[2])) for m in steps)
+            grown = sum(len(ast.literal_eval(m[3])) for m in steps)
+            active = steps[-1][4] if steps else "unchanged"
+            rows.append(
+                f"{config:12} {run_id}  {len(steps):37d}   {pruned:6d}   {grown:5d}   {active}"
+            )
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m a3c_tools.future_work_growth",
+        description="Growth steps, prototypes pruned and grown, per run.",
+    )
+    parser.add_argument(
+        "folder",
+        nargs="?",
+        type=Path,
+        default=FOLDER,
+        help="the configurations' folder (default results/future_work_catch)",
+    )
+    folder = parser.parse_args(argv).folder
+    missing = [
+        str(folder / c / "runs") for c in CONFIGS
+        if (folder / c / "results.csv").is_file() and not (folder / c / "runs").is_dir()
+    ]  # fmt: skip
+    if missing:
+        parser.error(f"no run folders ({', '.join(missing)}): run the configurations first")
+    print(HEADER)
+    for row in growth_rows(folder):
+        print(row)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

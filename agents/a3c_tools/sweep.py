@@ -1,0 +1,773 @@
+"""Sweep an agent script: run it many times with sampled flags and collect one results table.
+
+The thesis's Catch figures (6.3, 6.5-6.8, 7.1-7.7, A.1, A.2, C.1) are learning-rate sweeps: 50 to
+100 runs per configuration, the learning rate log-uniform in [1e-6, 1e-2], 1M steps each, each
+run scored by the mean of its final 5 evaluations. This tool runs such sweeps on one machine or
+on a Ray cluster; `a3c_tools.plot_sweep` draws the thesis's figure from the results.
+
+    python -m a3c_tools.sweep agents/a3c_ff.py --out sweeps/a3c_ff --runs 50 \\
+        --total-timesteps 1000000 --sample learning-rate=loguniform:1e-6:1e-2 -- --num-workers 1
+    python -m a3c_tools.plot_sweep sweeps/a3c_ff/results.csv --labels "A3C FF" --out a3c_ff.png
+
+Everything after `--` is passed unchanged to every run (the fixed flags). Samples, one
+`--sample NAME=DIST` per flag, drawn independently for each run:
+
+    loguniform:LOW:HIGH   exp(U(ln LOW, ln HIGH)), e.g. learning-rate=loguniform:1e-6:1e-2
+    uniform:LOW:HIGH      U(LOW, HIGH)
+    choice:A,B,C          one of the values, each equally likely: activation=choice:relu,elu
+
+Runs. Run i (run id run-0000, run-0001, ...) is `python SCRIPT FIXED SAMPLED --total-timesteps T
+--seed SEED+1000*i --run-dir OUT/runs/run-000i` (no --total-timesteps when none is given: the
+script's default). Its sampled values come from a generator seeded with (--seed, i) alone, so a
+sweep started again, or extended with a larger --runs, draws the same values for the same runs.
+Floats are written with 6 significant digits, and that string is both what the run gets and what
+the table records. Run seeds are 1000 apart, so that even a script that seeded its workers with
+seed + worker index would give different runs disjoint worker seeds.
+
+Workers per run. A run's CPUs are its --num-workers (fixed or sampled). With none given, the sweep
+passes --num-workers 1 (the scripts' own default is one worker per core, which would let one run
+take the whole machine): on one machine, many single-worker runs side by side is the most
+efficient use of the cores, with no Hogwild contention. Note that the thesis ran Catch with 12
+workers per run, and the number of workers changes how a learning rate behaves; pass
+`-- --num-workers 12` to match it.
+
+Scores. A finished run's evaluations.csv gives `score`, the mean of its final 5 evaluations
+(fewer when it has fewer; the one at step 0, of the untrained network, never counts unless it is
+the only one), as the thesis scores a run, and `score_all`, the mean of all of its evaluations,
+the one at step 0 included (the thesis's "mean score on 20 evaluations" panel).
+
+The results table OUT/results.csv has a row per finished run: run_id, status (ok or failed),
+score, score_all, evaluations, final_step, wall_time_s (a resumed run's counts its earlier
+parts), seed, one column per sampled flag, flags (the run's flags, ready to paste after the
+script) and error. A failed run (non-zero exit, no evaluations, or stopped by a signal the sweep
+did not send) is recorded with its error and does not stop the sweep; its logs stay in
+OUT/runs/<run_id>/stdout.log and stderr.log. The table is rewritten to a temporary file, flushed
+to disk and renamed over the old one after each run, so it is always whole.
+
+Resuming. OUT/sweep.json holds the sweep's configuration (script name, samples, fixed flags,
+step budget, seed). Started again with the same OUT, the sweep refuses a different configuration
+(exit 2, naming what differs) and otherwise skips every run in the table (ok or failed); a run
+that was in progress resumes from its checkpoint with its own flags (`--resume`, which keeps
+every flag of the run), or starts again from scratch where it had written none (its run folder
+is deleted first). --runs, the backend and the concurrency may change between starts.
+
+Ctrl-C (SIGINT) or SIGTERM stops the sweep: no new runs start, each running run gets SIGINT (the
+scripts checkpoint and exit) and is not recorded, so it reruns on the next start; exit code 130.
+A second Ctrl-C kills the runs at once. Were the sweep killed outright, its runs get SIGTERM
+from the kernel (Linux) and stop in the same way. On Ray, the sweep cancels its tasks: a running
+task stops its run with SIGINT, a queued one is dropped, and a second Ctrl-C kills the tasks.
+
+Backends.
+- local (default): runs are subprocesses on this machine, started in order while the CPUs they
+  reserve (their workers) fit in --cpus (default: the cores this process may use), and at most
+  --max-concurrent at once; for uniform runs that is max(1, cores // workers per run) at once.
+- ray (`--backend ray`, needs `pip install -e "./agents[ray]"`): each run is a Ray task that
+  reserves num_cpus = its workers, so Ray spreads the runs over a cluster. Without --address it
+  starts a local Ray instance with --cpus CPUs; `--address auto` or `--address HOST:PORT` joins
+  a running cluster (`ray start --head` on one node, `ray start --address HOST:PORT` on the
+  others). Every node needs the repository at the same path with the packages installed. The
+  task returns the run's evaluations.csv and log tails, which the sweep writes into its own
+  OUT/runs/<run_id>/ when the run ran on another node, so OUT need not be a shared file system.
+  A task whose node dies is retried by Ray (3 times, its default), from scratch.
+
+Exit codes: 0 when every run is in the table and at least one is ok, 1 when every run failed,
+2 for bad arguments or a mismatched configuration, 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import contextlib
+import csv
+import ctypes
+import io
+import json
+import math
+import os
+import random
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
+SEED_STRIDE = 1000  # run i gets seed + SEED_STRIDE * i
+TABLE_NAME = "results.csv"
+CONFIG_NAME = "sweep.json"
+RUNS_DIR = "runs"
+FIXED_COLUMNS = [
+    "run_id",
+    "status",
+    "score",
+    "score_all",
+    "evaluations",
+    "final_step",
+    "wall_time_s",
+    "seed",
+]
+TRAILING_COLUMNS = ["flags", "error"]
+# flags the sweep sets itself for each run
+RESERVED_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "evaluate"}
+STOP_GRACE_S = 30.0  # how long a run may take to checkpoint and exit after SIGINT
+TAIL_CHARS = 4000
+
+
+class UsageError(Exception):
+    """Bad arguments, or an output folder holding a sweep with another configuration."""
+
+
+# ------------------------------------------------------------------------------------------------
+# Sampling
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Sample:
+    """One sampled flag: `name=kind:...` with kind loguniform, uniform or choice."""
+
+    name: str
+    kind: str
+    low: float = 0.0
+    high: float = 0.0
+    choices: tuple[str, ...] = ()
+
+    def draw(self, u: float) -> str:
+        """The flag's value for a uniform draw u in [0, 1), as the run gets it."""
+        if self.kind == "choice":
+            return self.choices[min(int(u * len(self.choices)), len(self.choices) - 1)]
+        if self.kind == "loguniform":
+            value = math.exp(math.log(self.low) + u * (math.log(self.high) - math.log(self.low)))
+        else:
+            value = self.low + u * (self.high - self.low)
+        return format(value, ".6g")
+
+    def spec(self) -> str:
+        if self.kind == "choice":
+            return f"{self.name}=choice:{','.join(self.choices)}"
+        return f"{self.name}={self.kind}:{self.low!r}:{self.high!r}"
+
+
+def parse_sample(text: str) -> Sample:
+    """Parse `NAME=loguniform:LOW:HIGH`, `NAME=uniform:LOW:HIGH` or `NAME=choice:A,B,...`."""
+    name, sep, dist = text.partition("=")
+    name = name.strip().lstrip("-")
+    kind, _, rest = dist.partition(":")
+    usage = (
+        f"--sample {text!r}: expected NAME=loguniform:LOW:HIGH, NAME=uniform:LOW:HIGH or "
+        "NAME=choice:A,B,..."
+    )
+    if not sep or not name or kind not in ("loguniform", "uniform", "choice"):
+        raise UsageError(usage)
+    if name in RESERVED_FLAGS:
+        raise UsageError(f"--sample {text!r}: the sweep sets --{name} itself")
+    if kind == "choice":
+        choices = tuple(c for c in rest.split(",") if c)
+        if not choices:
+            raise UsageError(usage)
+        return Sample(name, kind, choices=choices)
+    try:
+        low, high = (float(v) for v in rest.split(":"))
+    except ValueError:
+        raise UsageError(usage) from None
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise UsageError(f"--sample {text!r}: need finite LOW < HIGH")
+    if kind == "loguniform" and low <= 0:
+        raise UsageError(f"--sample {text!r}: loguniform needs LOW > 0")
+    return Sample(name, kind, low, high)
+
+
+def sample_values(samples: list[Sample], sweep_seed: int, index: int) -> dict[str, str]:
+    """Run `index`'s sampled flag values. Python's random() stream is guaranteed stable across
+    versions for a given seed, so a restarted sweep draws exactly the same values."""
+    rng = random.Random(f"sweep-{sweep_seed}-run-{index}")
+    return {sample.name: sample.draw(rng.random()) for sample in samples}
+
+
+def flag_value(flags: list[str], name: str) -> str | None:
+    """The last value given to --name in flags (`--name V` or `--name=V`), else None."""
+    value = None
+    for i, flag in enumerate(flags):
+        if flag == f"--{name}" and i + 1 < len(flags):
+            value = flags[i + 1]
+        elif flag.startswith(f"--{name}="):
+            value = flag.split("=", 1)[1]
+    return value
+
+
+# ------------------------------------------------------------------------------------------------
+# Runs and their scores
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class Run:
+    index: int
+    seed: int
+    sampled: dict[str, str]
+    flags: list[str]  # everything after the script except --run-dir
+    workers: int
+
+    @property
+    def run_id(self) -> str:
+        return f"run-{self.index:04d}"
+
+    def command(self, script: str, run_dir: Path) -> list[str]:
+        """The run's command line, without the interpreter."""
+        return [script, *self.flags, "--run-dir", str(run_dir)]
+
+
+def plan_runs(config: dict, runs: int) -> list[Run]:
+    """The runs of a sweep, 0..runs-1, from its configuration alone."""
+    samples = [parse_sample(s) for s in config["samples"]]
+    fixed = list(config["fixed_flags"])
+    planned = []
+    for index in range(runs):
+        sampled = sample_values(samples, config["seed"], index)
+        flags = [*fixed]
+        for name, value in sampled.items():
+            flags += [f"--{name}", value]
+        if flag_value(flags, "num-workers") is None and flag_value(flags, "num_workers") is None:
+            flags += ["--num-workers", "1"]
+        if config["total_timesteps"] is not None:
+            flags += ["--total-timesteps", str(config["total_timesteps"])]
+        seed = config["seed"] + SEED_STRIDE * index
+        flags += ["--seed", str(seed)]
+        workers_text = flag_value(flags, "num-workers") or flag_value(flags, "num_workers")
+        try:
+            workers = max(1, int(workers_text))
+        except ValueError:
+            workers = 1  # the script will reject it; the run is recorded as failed
+        planned.append(Run(index, seed, sampled, flags, workers))
+    return planned
+
+
+def score_evaluations(text: str) -> dict:
+    """Score an evaluations.csv (columns global_step, ..., mean_return): `score` is the mean of
+    the final 5 evaluations' mean returns, leaving out step 0's unless it is the only one,
+    `score_all` the mean of all of them. Raises ValueError when it holds no evaluation."""
+    rows = list(csv.DictReader(io.StringIO(text)))
+    if not rows or "mean_return" not in rows[0]:
+        raise ValueError("evaluations.csv holds no evaluation")
+    returns = [float(row["mean_return"]) for row in rows]
+    trained = [r for r, row in zip(returns, rows, strict=True) if row.get("global_step") != "0"]
+    final = (trained or returns)[-SCORE_LAST:]  # the untrained network's score never counts
+    return {
+        "score": sum(final) / len(final),
+        "score_all": sum(returns) / len(returns),
+        "evaluations": len(returns),
+        "final_step": rows[-1].get("global_step", ""),
+        "clock_s": float(rows[-1].get("wall_time_s") or 0.0),
+    }
+
+
+def describe_failure(returncode: int, stderr: str) -> str:
+    """One line for the table: the exit, the script's `error:` line and the last stderr line."""
+    if returncode < 0:
+        exit_text = f"killed by {signal.Signals(-returncode).name}"
+    else:
+        exit_text = f"exit code {returncode}"
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("error:")]
+    parts = [exit_text]
+    if errors:
+        parts.append(errors[-1])
+    if lines and lines[-1] not in parts:
+        parts.append(lines[-1])
+    return ": ".join(parts)[:500]
+
+
+def execute_run(
+    command: list[str], run_dir: str, stop_level: Callable[[], int] = lambda: 0
+) -> dict:
+    """Run one agent script in a fresh run folder and wait for it (a thread of the local
+    backend, or a Ray task). stop_level() > 0 asks the run to stop (SIGINT: the scripts
+    checkpoint and exit), > 1 to die now (SIGKILL); a Ray cancel raises KeyboardInterrupt here
+    and is a stop too. Returns what the sweep needs to score or describe it."""
+    run_path = Path(run_dir)
+    checkpoint = run_path / "checkpoint.pt"
+    if checkpoint.is_file():  # interrupted in an earlier sweep: the run goes on with its flags
+        command = [command[0], "--resume", str(checkpoint)]
+    else:  # a partial run that wrote no checkpoint starts again
+        shutil.rmtree(run_path, ignore_errors=True)
+        run_path.mkdir(parents=True)
+    start = time.time()
+    interrupted = False
+    with open(run_path / "stdout.log", "ab") as out, open(run_path / "stderr.log", "ab") as err:
+        process = subprocess.Popen(
+            [sys.executable, *command],
+            stdout=out,
+            stderr=err,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,  # a terminal's Ctrl-C reaches the sweep only; it forwards it
+            preexec_fn=_prepare_child,
+        )
+        deadline = None
+        try:
+            while process.poll() is None:
+                level = stop_level()
+                if level > 0 and not interrupted:
+                    interrupted = True
+                    _signal_group(process, signal.SIGINT)
+                    deadline = time.time() + STOP_GRACE_S
+                if interrupted and (level > 1 or time.time() > deadline):
+                    _signal_group(process, signal.SIGKILL)
+                    process.wait()
+                    break
+                time.sleep(0.1)
+        except BaseException:  # KeyboardInterrupt from a Ray cancel, or anything else
+            interrupted = True
+            _signal_group(process, signal.SIGINT)
+            with contextlib.suppress(BaseException):  # a second interrupt: kill below
+                process.wait(STOP_GRACE_S)
+            if process.poll() is None:
+                _signal_group(process, signal.SIGKILL)
+                process.wait()
+    evaluations = run_path / "evaluations.csv"
+    return {
+        "returncode": process.returncode,
+        "interrupted": interrupted,
+        "wall_time_s": time.time() - start,
+        "stdout_tail": _tail(run_path / "stdout.log"),
+        "stderr_tail": _tail(run_path / "stderr.log"),
+        "evaluations_csv": evaluations.read_text() if evaluations.exists() else None,
+    }
+
+
+def _tail(path: Path) -> str:
+    with open(path, "rb") as f:
+        f.seek(max(0, path.stat().st_size - TAIL_CHARS))
+        return f.read().decode(errors="replace")
+
+
+def _signal_group(process: subprocess.Popen, signum: int) -> None:
+    """Signal the run's process group (its main process and workers) while the main process is
+    not yet reaped, so that the group id still names it."""
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(process.pid, signum)
+
+
+def _prepare_child() -> None:
+    """In the child, before exec: unblock every signal (a Ray worker runs tasks with SIGINT
+    blocked, and exec keeps the mask, so the run would never see the sweep's SIGINT), and on
+    Linux ask for SIGTERM when the thread that started it dies (PR_SET_PDEATHSIG), so that a
+    killed sweep leaves no runs behind."""
+    signal.pthread_sigmask(signal.SIG_SETMASK, set())
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1: PR_SET_PDEATHSIG
+
+
+def result_row(run: Run, result: dict) -> dict | None:
+    """The table row of a run that ended, or None when the sweep stopped it (it reruns)."""
+    if result["interrupted"]:
+        return None
+    row = {
+        "run_id": run.run_id,
+        "status": "ok",
+        "score": "",
+        "score_all": "",
+        "evaluations": "",
+        "final_step": "",
+        "wall_time_s": round(result["wall_time_s"], 2),
+        "seed": run.seed,
+        **run.sampled,
+        "flags": shlex.join(run.flags),
+        "error": "",
+    }
+    stdout_lines = [line for line in result["stdout_tail"].splitlines() if line.strip()]
+    error = None
+    if result["returncode"] != 0:
+        error = describe_failure(result["returncode"], result["stderr_tail"])
+    elif stdout_lines and stdout_lines[-1].startswith("stopped by"):
+        error = f"stopped before its step budget: {stdout_lines[-1]}"[:500]
+    elif result["evaluations_csv"] is None:
+        error = "exit code 0 but no evaluations.csv"
+    else:
+        try:
+            scores = score_evaluations(result["evaluations_csv"])
+            # a resumed run's own clock counts its earlier parts; this process saw only the last
+            row["wall_time_s"] = round(max(result["wall_time_s"], scores.pop("clock_s")), 2)
+            row.update(scores)
+        except (ValueError, KeyError) as e:
+            error = f"bad evaluations.csv: {e}"
+    if error is not None:
+        row["status"], row["error"] = "failed", error
+    return row
+
+
+# ------------------------------------------------------------------------------------------------
+# The output folder: sweep.json and results.csv
+# ------------------------------------------------------------------------------------------------
+def check_config(out: Path, config: dict) -> None:
+    """Write out/sweep.json, or check that the one there holds the same configuration."""
+    path = out / CONFIG_NAME
+    if path.exists():
+        stored = json.loads(path.read_text())
+        differ = [key for key in config if stored.get(key) != config[key]]
+        if differ:
+            details = "; ".join(f"{k}: {stored.get(k)!r} there, {config[k]!r} now" for k in differ)
+            raise UsageError(
+                f"{out} holds a sweep with another configuration ({details}); "
+                "use another --out, or the same arguments to resume it"
+            )
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    _write_atomically(path, json.dumps(config, indent=2) + "\n")
+
+
+def lock_folder(out: Path):
+    """Hold an exclusive lock on out/runs/sweep.lock for as long as the returned file stays
+    open, so that two sweeps cannot write the same folder (no-op where fcntl is missing). It
+    lives in runs/, which the repository's .gitignore leaves out, with the run folders."""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
+    lock = open(out / RUNS_DIR / "sweep.lock", "w")  # noqa: SIM115 (closed when the process exits)
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        raise UsageError(f"another sweep is running in {out}") from None
+    return lock
+
+
+class ResultsTable:
+    """out/results.csv: one row per finished run, always whole on disk."""
+
+    def __init__(self, path: Path, sampled_names: list[str]):
+        self.path = path
+        self.columns = [*FIXED_COLUMNS, *sampled_names, *TRAILING_COLUMNS]
+        self.rows: dict[str, dict] = {}
+        if path.exists():
+            with open(path, newline="") as f:
+                for row in csv.DictReader(f):
+                    if row.get("status") in ("ok", "failed"):
+                        self.rows[row["run_id"]] = row
+
+    def finished(self, run_id: str) -> bool:
+        return run_id in self.rows
+
+    def add(self, row: dict) -> None:
+        self.rows[row["run_id"]] = row
+        text = io.StringIO()
+        writer = csv.DictWriter(text, self.columns, extrasaction="ignore", lineterminator="\n")
+        writer.writeheader()
+        for run_id in sorted(self.rows):
+            writer.writerow(self.rows[run_id])
+        _write_atomically(self.path, text.getvalue())
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    directory = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+# ------------------------------------------------------------------------------------------------
+# Backends
+# ------------------------------------------------------------------------------------------------
+class StopRequests:
+    """Counts SIGINT/SIGTERM: 1 = stop the runs cleanly, 2 = kill them."""
+
+    def __init__(self) -> None:
+        self.level = 0
+        self.previous = {}
+
+    def __enter__(self) -> StopRequests:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            self.previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler)
+
+    def _handle(self, signum, _frame) -> None:
+        self.level += 1
+        name = signal.Signals(signum).name
+        if self.level == 1:
+            print(
+                f"{name}: stopping the running runs (they rerun next time); again to kill them",
+                flush=True,
+            )
+        else:
+            print(f"{name}: killing the running runs", flush=True)
+
+
+def run_local(
+    script: str,
+    todo: list[Run],
+    out: Path,
+    record: Callable,
+    cpus: int,
+    max_concurrent: int | None,
+    stop: StopRequests,
+) -> None:
+    """Run the runs as subprocesses, in order, while their workers fit in `cpus`."""
+    pending = list(todo)
+    running: dict[concurrent.futures.Future, Run] = {}
+    # threads only wait on their subprocess; each lives as long as the pool (PDEATHSIG is tied
+    # to the thread that started the child)
+    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, len(todo))) as pool:
+        while pending or running:
+            while pending and stop.level == 0:
+                used = sum(run.workers for run in running.values())
+                full = max_concurrent is not None and len(running) >= max_concurrent
+                if running and (full or used + pending[0].workers > cpus):
+                    break
+                run = pending.pop(0)
+                command = run.command(script, out / RUNS_DIR / run.run_id)
+                future = pool.submit(
+                    execute_run, command, str(out / RUNS_DIR / run.run_id), lambda: stop.level
+                )
+                running[future] = run
+            if stop.level > 0:
+                pending.clear()
+            done, _ = concurrent.futures.wait(
+                running, timeout=0.2, return_when=concurrent.futures.FIRST_COMPLETED
+            )
+            for future in done:
+                record(running.pop(future), future.result())
+
+
+def run_ray(
+    script: str,
+    todo: list[Run],
+    out: Path,
+    record: Callable,
+    cpus: int | None,
+    address: str | None,
+    stop: StopRequests,
+) -> None:
+    """Run each run as a Ray task that reserves num_cpus = its workers."""
+    try:
+        import ray
+    except ImportError:
+        raise UsageError(
+            '--backend ray needs Ray: pip install -e "./agents[ray]" (or pip install ray)'
+        ) from None
+    if __name__ != "__main__":  # imported (tests): ship this module's code to the workers
+        ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    if address:
+        ray.init(address=address, log_to_driver=False)
+    else:
+        ray.init(num_cpus=cpus, log_to_driver=False)
+    try:
+        available = ray.cluster_resources().get("CPU", 0)
+        largest = max(run.workers for run in todo)
+        if largest > available:
+            raise UsageError(f"a run needs {largest} CPUs; the Ray cluster has {available:g}")
+        print(f"ray: {available:g} CPUs in the cluster", flush=True)
+        task = ray.remote(execute_run)  # Ray retries a task whose node died, from scratch
+        script = str(Path(script).resolve())
+        refs = {}
+        for run in todo:
+            run_dir = str((out / RUNS_DIR / run.run_id).resolve())
+            ref = task.options(num_cpus=run.workers, name=run.run_id).remote(
+                run.command(script, Path(run_dir)), run_dir
+            )
+            refs[ref] = run
+        cancelled = 0
+        while refs:
+            if stop.level > cancelled:
+                # level 1: KeyboardInterrupt in the running tasks (execute_run stops its run with
+                # SIGINT) and queued tasks dropped; level 2: the tasks' workers are killed
+                cancelled = stop.level
+                for ref in refs:
+                    ray.cancel(ref, force=cancelled > 1)
+            done, _ = ray.wait(list(refs), num_returns=1, timeout=0.2)
+            for ref in done:
+                run = refs.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayError as e:
+                    result = {
+                        "returncode": 1,
+                        "interrupted": stop.level > 0,
+                        "wall_time_s": 0.0,
+                        "stdout_tail": "",
+                        "stderr_tail": f"error: ray: {e}",
+                        "evaluations_csv": None,
+                    }
+                record(run, result)
+    finally:
+        ray.shutdown()
+
+
+def _copy_back(run_dir: Path, result: dict) -> None:
+    """Keep the files of a run that ran on another node: evaluations.csv and the log tails."""
+    if result.get("interrupted"):
+        return
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if result["evaluations_csv"] is not None and not (run_dir / "evaluations.csv").exists():
+        (run_dir / "evaluations.csv").write_text(result["evaluations_csv"])
+    for name in ("stdout", "stderr"):
+        if not (run_dir / f"{name}.log").exists():
+            (run_dir / f"{name}.log").write_text(result[f"{name}_tail"])
+
+
+# ------------------------------------------------------------------------------------------------
+# Command line
+# ------------------------------------------------------------------------------------------------
+def cpu_count() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The sweep's own arguments, and the fixed flags after `--`."""
+    if "--" in argv:
+        split = argv.index("--")
+        argv, fixed = argv[:split], argv[split + 1 :]
+    else:
+        fixed = []
+    parser = argparse.ArgumentParser(
+        prog="sweep.py",
+        description="Run an agent script many times with sampled flags; collect a results table.",
+        epilog="Flags after `--` go unchanged to every run. See the module docstring for more.",
+    )
+    parser.add_argument("script", help="the agent script, e.g. agents/a3c_ff.py")
+    parser.add_argument("--out", required=True, help="the sweep's output folder")
+    parser.add_argument("--runs", type=int, default=50, help="number of runs (default 50)")
+    parser.add_argument(
+        "--total-timesteps",
+        type=int,
+        default=None,
+        help="each run's step budget (default: the script's)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=1,
+        help="the sweep seed: sampled values and run seeds derive from it",
+    )
+    parser.add_argument(
+        "--sample",
+        action="append",
+        default=[],
+        metavar="NAME=DIST",
+        help="a sampled flag: NAME=loguniform:LOW:HIGH, NAME=uniform:LOW:HIGH or "
+        "NAME=choice:A,B,...; repeat for more flags",
+    )
+    parser.add_argument("--backend", choices=["local", "ray"], default="local")
+    parser.add_argument(
+        "--address",
+        default=None,
+        help="with --backend ray: a running cluster ('auto' or HOST:PORT)",
+    )
+    parser.add_argument(
+        "--cpus",
+        type=int,
+        default=None,
+        help="CPUs to fill (local backend, or the local Ray instance); "
+        "default: this machine's cores",
+    )
+    parser.add_argument(
+        "--max-concurrent",
+        type=int,
+        default=None,
+        help="local backend: at most this many runs at once (default: as many as "
+        "fit in --cpus, i.e. max(1, cores // workers per run))",
+    )
+    parser.add_argument(
+        "--dry-run", action="store_true", help="print the runs' command lines and exit"
+    )
+    return parser.parse_args(argv), fixed
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, fixed = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        return sweep(args, fixed)
+    except UsageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+
+
+def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
+    if not Path(args.script).is_file():
+        raise UsageError(f"script {args.script!r} does not exist")
+    if args.runs < 1:
+        raise UsageError(f"--runs must be >= 1 (got {args.runs})")
+    if args.total_timesteps is not None and args.total_timesteps < 1:
+        raise UsageError(f"--total-timesteps must be >= 1 (got {args.total_timesteps})")
+    if args.address and args.backend != "ray":
+        raise UsageError("--address needs --backend ray")
+    for value, flag in ((args.cpus, "--cpus"), (args.max_concurrent, "--max-concurrent")):
+        if value is not None and value < 1:
+            raise UsageError(f"{flag} must be >= 1 (got {value})")
+    for name in RESERVED_FLAGS:
+        if flag_value(fixed, name) is not None or flag_value(fixed, name.replace("-", "_")):
+            raise UsageError(f"do not pass --{name} after `--`: the sweep sets it for each run")
+    samples = [parse_sample(s) for s in args.sample]
+    names = [s.name for s in samples]
+    if len(set(names)) != len(names):
+        raise UsageError(f"a flag is sampled twice: {names}")
+    config = {
+        "script": Path(args.script).name,
+        "samples": [s.spec() for s in samples],
+        "fixed_flags": fixed,
+        "total_timesteps": args.total_timesteps,
+        "seed": args.seed,
+        "score": f"mean of the final {SCORE_LAST} evaluations",
+    }
+    runs = plan_runs(config, args.runs)
+    out = Path(args.out)
+    if args.dry_run:
+        for run in runs:
+            print(shlex.join(["python", *run.command(args.script, out / RUNS_DIR / run.run_id)]))
+        return 0
+    check_config(out, config)
+    lock = lock_folder(out)  # noqa: F841 (held until the sweep exits)
+    table = ResultsTable(out / TABLE_NAME, names)
+    todo = [run for run in runs if not table.finished(run.run_id)]
+    cpus = args.cpus or cpu_count()
+    print(
+        f"sweep {args.script}: {len(runs)} runs, {len(runs) - len(todo)} already in "
+        f"{out / TABLE_NAME}, {len(todo)} to run ({args.backend} backend)",
+        flush=True,
+    )
+    finished = [0]
+
+    def record(run: Run, result: dict) -> None:
+        _copy_back(out / RUNS_DIR / run.run_id, result)
+        row = result_row(run, result)
+        if row is None:
+            return
+        table.add(row)
+        finished[0] += 1
+        sampled = " ".join(f"{k}={v}" for k, v in run.sampled.items())
+        outcome = f"score {row['score']:.3f}" if row["status"] == "ok" else row["error"]
+        print(
+            f"[{finished[0]}/{len(todo)}] {run.run_id} {row['status']} {sampled} | {outcome} | "
+            f"{row['wall_time_s']:.0f}s",
+            flush=True,
+        )
+
+    with StopRequests() as stop:
+        if todo and args.backend == "local":
+            run_local(args.script, todo, out, record, cpus, args.max_concurrent, stop)
+        elif todo:
+            run_ray(args.script, todo, out, record, args.cpus, args.address, stop)
+    if stop.level > 0:
+        print(f"interrupted: {finished[0]} runs recorded; start again to finish", flush=True)
+        return 130
+    statuses = [table.rows[run.run_id]["status"] for run in runs]
+    ok = statuses.count("ok")
+    print(f"done: {ok} ok, {len(statuses) - ok} failed -> {out / TABLE_NAME}", flush=True)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

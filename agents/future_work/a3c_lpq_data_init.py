@@ -1,0 +1,517 @@
+# A3C LPQ with prototypes initialised from the data: chapter 8's "proper initialization of
+# prototypes". Before the workers start, each prototype is placed on a distinct feature vector h
+# that the initial network gives the states of a short random-policy rollout, so that distances
+# start at the features' scale. A copy of a3c_lpq.py: only the flag, the network's placement and
+# the runtime's initialize hook (a new run's global network, before the workers) differ.
+import math
+import os
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from a3c_runtime import (
+    Agent,
+    Shared,
+    UsageError,
+    annealed_lr,
+    autocast_contexts,
+    clip_gradients,
+    default_num_workers,
+    default_text,
+    process_seed,
+    replay_activations,
+    run,
+    seed_everything,
+)
+
+
+@dataclass
+class Args:
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment (part of the run name)"""
+    seed: int = 1
+    """seed of the experiment: of the initial network and, with its index, of each process"""
+    env: str = "Catch-v0"
+    """the Gymnasium id: Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4"""
+    total_timesteps: Annotated[int | None, default_text("1e6 for Catch, 1e8 for ALE ids")] = None
+    """total global env steps T_max"""
+    num_workers: Annotated[int, default_text("the number of CPU cores")] = default_num_workers()
+    """the number of actor-learner processes"""
+    envs_per_worker: int = 1
+    """K, the envs each worker steps together: it acts on all K with one batched forward and
+    learns from the K x t_max rollout in one update (batched actors inside each Hogwild worker,
+    as in PAAC, Clemente et al. 2017); 1 is the thesis's algorithm"""
+    time_limit: float | None = None
+    """stop training after this many seconds of wall time, as if T_max was reached"""
+
+    # Algorithm (thesis Table 5.1)
+    learning_rate: float = 7e-4
+    """the learning rate eta"""
+    anneal_lr: bool = True
+    """anneal the learning rate linearly to 0 at T_max (by the shared global step)"""
+    t_max: int = 20
+    """the rollout length: steps per update, fewer when the episode ends"""
+    gamma: float = 0.99
+    """the discount factor gamma"""
+    ent_coef: float = 0.01
+    """the entropy factor beta"""
+    vf_coef: float = 0.5
+    """the value loss factor lambda_V (thesis 6.4.1); the value loss is vf_coef * 0.5 * (G - V)^2"""
+    precision: Literal["auto", "fp32", "bf16", "bf16-learn"] = "auto"
+    """the workers' network passes: fp32; bf16: acting and learning under bfloat16 CPU autocast;
+    bf16-learn: acting (and so the forward values the loss replays) in fp32, the learning pass's
+    gradients in bf16. Weights, optimizer statistics, returns and the loss stay float32; the
+    evaluator and --evaluate play in fp32. auto, on a CPU with native bf16: bf16 with K > 1 envs
+    per worker, bf16-learn with K = 1 (a forward over one state is faster in fp32); fp32
+    elsewhere (results/precision_catch, results/throughput_batched)"""
+
+    # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
+    optimizer: Literal["rmsprop", "adam"] = "rmsprop"
+    """the shared optimizer; its statistics live in shared memory and are updated without locks"""
+    rms_decay: float = 0.99
+    """RMSprop decay rho of the mean square"""
+    adam_beta1: float = 0.9
+    """Adam's first-moment decay beta1"""
+    adam_beta2: float = 0.99
+    """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
+    optim_eps: float = 0.1
+    """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
+    rms_init: float = 0.0
+    """RMSprop's initial mean square ms: 0 as in the thesis's code; 1 as TensorFlow's
+    RMSPropOptimizer (OpenAI baselines' A2C, whose --optim-eps 1e-5 assumes it): from 0 with a
+    small eps the first updates are about 10 lr per weight, from 1 they start small"""
+    grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
+    """gradient clipping: per-tensor norm, per-value, global norm (thesis 6.3.1), or none"""
+    grad_clip: Annotated[float | None, default_text("40; c_g = 25 for global-norm")] = None
+    """the clipping bound"""
+
+    # Network (thesis 5.2.1 and chapter 6)
+    activation: Literal["relu", "elu"] = "relu"
+    """the hidden-layer activation (thesis 6.3.2)"""
+    weight_init: Literal["torch", "he", "uniform-sqrt3"] = "torch"
+    """weights: torch U(+-1/sqrt(fan_in)); he: truncated normal std sqrt(2/fan_in);
+    uniform-sqrt3: U(+-sqrt(3)/sqrt(fan_in)) (thesis 6.3.3)"""
+    bias_init: Annotated[float | None, default_text("torch init's, else 0")] = None
+    """a constant for every bias (thesis A.1.3 uses 0.01); by default U(+-1/sqrt(fan_in)) with
+    torch init, 0 with the other weight inits"""
+    scale_obs: Annotated[bool | None, default_text("True for ALE, False for Catch")] = None
+    """divide frames by 255 (the thesis fed Catch 0..255)"""
+
+    # Prototype policy (thesis chapter 7: LPQ, eqs. 7.5, 7.9, 7.11)
+    prototypes_per_action: int = 16
+    """prototypes per action in the 256-d feature space"""
+    distance: Literal["squared-euclidean", "euclidean", "manhattan", "cosine", "pearson",
+                      "inverse-squared-euclidean"] = "squared-euclidean"  # fmt: skip
+    """the distance d(h, w) (thesis 7.2.1)"""
+    competition_size: Annotated[int | None, default_text("all")] = None
+    """k: only the k nearest prototypes of each action compete (eq. 7.11)"""
+    prototype_init: Literal["uniform", "uniform-clipped", "data"] = "data"
+    """data: each prototype on a distinct feature vector h of the initial network, from the states
+    of a short random-policy rollout (initialize_network); uniform and uniform-clipped: the thesis
+    script's U(-b, b), with negatives set to 0 for uniform-clipped"""
+    prototype_init_bound: float = 1 / 16
+    """the bound b of the prototype initialisation"""
+
+    # Evaluation, logging, checkpoints
+    eval_interval: Annotated[int | None, default_text("50,000 for Catch, 1,000,000 for ALE")] = None
+    """global steps between evaluations"""
+    eval_episodes: Annotated[int | None, default_text("50; 5 with --evaluate --render human")] = (
+        None
+    )
+    """episodes per evaluation, sampling actions from pi"""
+    eval_greedy: bool = False
+    """evaluations (and --evaluate) play argmax pi instead of sampling from pi (the thesis
+    samples; greedy play tells how much of a score the policy's randomness costs)"""
+    checkpoint_interval: Annotated[int | None, default_text("the evaluation interval")] = None
+    """global steps between checkpoints; also at the end"""
+    log_interval: float = 5.0
+    """seconds between console progress lines and TensorBoard scalars"""
+    runs_root: str = "runs"
+    """the folder that gets a new run folder runs_root/<run_name>"""
+    run_dir: str | None = None
+    """the run folder, instead of runs_root/<run_name> (with --resume: the checkpoint's)"""
+    resume: str | None = None
+    """a checkpoint.pt to continue training from (network, optimizer statistics, global step)"""
+    capture_video: bool = False
+    """record evaluation episodes (one per evaluation) to <run_dir>/videos"""
+    evaluate: str | None = None
+    """play --eval-episodes episodes with the network of this checkpoint, print the scores, exit
+    (--capture-video records them to videos-evaluate next to it)"""
+    render: Literal["none", "human"] = "none"
+    """with --evaluate: 'human' shows the episodes in a window"""
+
+
+def make_env(env_id: str, render_mode: str | None = None) -> gym.Env:
+    """The thesis preprocessing from catch_env.wrappers: 4 stacked 84x84 uint8 frames, Atari
+    action repeat 4 and reward clipping; info["episode"]["r"] is the raw game score."""
+    from catch_env.wrappers import make_env as make_wrapped_env
+
+    return make_wrapped_env(env_id, render_mode=render_mode)
+
+
+def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
+    """make_env's preprocessing for num_envs envs stepped together (Catch: its NumPy vector
+    env; ALE: ale-py's C++ vector env, one emulator thread); an ended episode's env is reset in
+    the same step (catch_env.wrappers.make_vector_env)."""
+    from catch_env.wrappers import make_vector_env as make_wrapped_vector_env
+
+    return make_wrapped_vector_env(env_id, num_envs)
+
+
+# ----------------------------------------------------------------------------------------------
+# The network. Variants (LWS, SS, WW, LSTM, LPQ, GLPQ) replace this class and NETWORK_ARGS.
+# Contract: forward(obs uint8 (B, 4, 84, 84)) -> (log-probabilities (B, A), values (B,)).
+# ----------------------------------------------------------------------------------------------
+# args a checkpoint's network depends on
+NETWORK_ARGS = ("env", "activation", "scale_obs", "prototypes_per_action", "distance",
+                "competition_size")  # fmt: skip
+NORM_EPS = 1e-8  # below this norm a vector counts as zero (cosine and Pearson distances)
+SQRT_EPS = 1e-12  # the Euclidean distance is sqrt(max(squared, SQRT_EPS)): no infinite gradient
+
+
+def unit_vectors(x: torch.Tensor) -> torch.Tensor:
+    """x / |x| along the last axis; a zero vector has no direction and stays 0, with a zero
+    gradient rather than NaN (torch.where on a safe denominator)."""
+    norm = torch.linalg.vector_norm(x, dim=-1, keepdim=True)
+    nonzero = norm > NORM_EPS
+    return torch.where(nonzero, x / torch.where(nonzero, norm, 1.0), 0.0)
+
+
+# float32 whatever --precision: under bf16 autocast the expansion |h|^2 - 2 h.w + |w|^2 below
+# cancels to noise (3 significant digits): a distance of 0.5 came out as 0, errors up to 38
+@torch.autocast("cpu", enabled=False)
+def prototype_distances(
+    features: torch.Tensor, prototypes: torch.Tensor, distance: str
+) -> torch.Tensor:
+    """d(h, w) of thesis 7.2.1 between each feature row (B, D) and prototype (M, D) -> (B, M),
+    in float32. Cosine and Pearson give 1 (orthogonal) where a vector is zero (or constant, for
+    Pearson)."""
+    features, prototypes = features.float(), prototypes.float()
+    if distance in ("cosine", "pearson"):
+        if distance == "pearson":  # the cosine distance of the mean-centred vectors
+            features = features - features.mean(-1, keepdim=True)
+            prototypes = prototypes - prototypes.mean(-1, keepdim=True)
+        # clamped: rounding must not make d(h, h) negative (GLPQ's mu would leave [-1, 1])
+        return (1.0 - unit_vectors(features) @ unit_vectors(prototypes).T).clamp_min(0.0)
+    if distance == "manhattan":
+        return torch.cdist(features, prototypes, p=1.0)
+    # |h - w|^2 = |h|^2 - 2 h.w + |w|^2: a matrix product, several times faster to train than
+    # the (B, M, D) difference; clamped, as rounding can take it slightly below 0
+    squared = torch.addmm(prototypes.square().sum(-1), features, prototypes.T, alpha=-2.0)
+    squared = (squared + features.square().sum(-1, keepdim=True)).clamp_min(0.0)
+    if distance == "squared-euclidean":
+        return squared
+    if distance == "euclidean":
+        return squared.clamp_min(SQRT_EPS).sqrt()
+    if distance == "inverse-squared-euclidean":  # a similarity turned into a "distance"
+        return -1.0 / (1.0 + squared)
+    raise ValueError(f"unknown distance {distance!r}")
+
+
+def nearest_prototypes(distances: torch.Tensor, k: int) -> torch.Tensor:
+    """The competition B of eq. 7.11: the distances (B, A, P) of each action's k nearest
+    prototypes -> (B, A, k)."""
+    if k == distances.shape[-1]:
+        return distances
+    return distances.topk(k, dim=-1, largest=False, sorted=False).values
+
+
+def lpq_log_policy(distances: torch.Tensor, k: int) -> torch.Tensor:
+    """log pi(a) of eq. 7.9 from the distances (B, A, P): log sum over a's competing prototypes
+    of exp(-d) minus log sum over all competing prototypes."""
+    distances = nearest_prototypes(distances, k)
+    # log sum_p exp(-d_p) = log sum_p exp(m - d_p) - m with m = min_p d_p: the terms lie in
+    # (0, 1] and one is 1, so nothing overflows or sums to 0. The same as logsumexp (m is a
+    # constant to the gradient), at a fraction of its generic CPU kernel's cost.
+    nearest = distances.detach().amin(dim=-1, keepdim=True)  # (B, A, 1)
+    per_action = torch.exp(nearest - distances).sum(-1).log() - nearest.squeeze(-1)  # (B, A)
+    return F.log_softmax(per_action, dim=-1)
+
+
+class ActorCritic(nn.Module):
+    """A3C LPQ (thesis 7.1.2, 7.2): the A3C FF torso and value head; the policy is a softmax of
+    the negative distances from the 256-d feature h to P prototypes per action, summed per
+    action (eq. 7.9), over each action's k nearest prototypes (eq. 7.11)."""
+
+    def __init__(self, num_actions: int, args: Args):
+        super().__init__()
+        activation = {"relu": nn.ReLU, "elu": nn.ELU}[args.activation]
+        self.torso = nn.Sequential(  # in-place activations: fewer allocations, same gradients
+            nn.Conv2d(4, 32, 8, stride=4),
+            activation(inplace=True),
+            nn.Conv2d(32, 64, 4, stride=2),
+            activation(inplace=True),
+            nn.Flatten(),
+            nn.Linear(64 * 9 * 9, 256),
+            activation(inplace=True),
+        )
+        self.value = nn.Linear(256, 1)
+        self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
+        init_parameters(self, args.weight_init, args.bias_init)
+        per_action, k = args.prototypes_per_action, args.competition_size
+        self.competition_size = per_action if k is None else k
+        if per_action < 1 or not 1 <= self.competition_size <= per_action:
+            raise UsageError(
+                "--prototypes-per-action must be >= 1 and --competition-size in [1, "
+                f"--prototypes-per-action] (got {per_action} and {args.competition_size})"
+            )
+        if not args.prototype_init_bound > 0:
+            raise UsageError(
+                f"--prototype-init-bound must be > 0 (got {args.prototype_init_bound})"
+            )
+        self.num_actions, self.distance = num_actions, args.distance
+        # rows a * P ... a * P + P - 1 belong to action a
+        self.prototypes = nn.Parameter(torch.empty(num_actions * per_action, 256))
+        bound = args.prototype_init_bound
+        with torch.no_grad():
+            self.prototypes.uniform_(-bound, bound)
+            if args.prototype_init == "uniform-clipped":
+                self.prototypes.clamp_(min=0.0)
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        # channels_last makes oneDNN's convolution backward about 2x faster on CPU
+        x = obs.to(dtype=torch.float32, memory_format=torch.channels_last)
+        if self.obs_scale != 1.0:
+            x = x * self.obs_scale
+        hidden = self.torso(x)
+        return self.log_policy(hidden), self.value(hidden).squeeze(-1)
+
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """h (B, 256) of the frames (B, 4, 84, 84), as forward computes it."""
+        x = obs.to(dtype=torch.float32, memory_format=torch.channels_last)
+        if self.obs_scale != 1.0:
+            x = x * self.obs_scale
+        return self.torso(x)
+
+    @torch.no_grad()
+    def place_prototypes(self, hidden: torch.Tensor, rng: np.random.Generator) -> None:
+        """--prototype-init data: each prototype on a feature vector of hidden (N, 256),
+        distinct vectors while there are enough."""
+        distinct = torch.unique(hidden, dim=0)  # sorted: the draw below makes the order random
+        replace = len(self.prototypes) > len(distinct)
+        rows = rng.choice(len(distinct), len(self.prototypes), replace=replace)
+        self.prototypes.copy_(distinct[torch.from_numpy(rows)])
+
+    def log_policy(self, hidden: torch.Tensor) -> torch.Tensor:
+        """log pi (B, A) from the features h (B, 256)."""
+        distances = prototype_distances(hidden, self.prototypes, self.distance)
+        distances = distances.view(len(hidden), self.num_actions, -1)  # (B, A, P)
+        return lpq_log_policy(distances, self.competition_size)
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def init_parameters(model: nn.Module, weight_init: str, bias_init: float | None) -> None:
+    """Initialise every Conv2d/Linear layer with the thesis 6.3.3 scheme; biases per A.1.3."""
+    for layer in model.modules():
+        if not isinstance(layer, (nn.Conv2d, nn.Linear)):
+            continue
+        fan_in = layer.weight[0].numel()
+        if weight_init == "he":
+            std = math.sqrt(2.0 / fan_in)
+            nn.init.trunc_normal_(layer.weight, std=std, a=-2 * std, b=2 * std)
+        elif weight_init == "uniform-sqrt3":
+            bound = math.sqrt(3.0 / fan_in)
+            nn.init.uniform_(layer.weight, -bound, bound)
+        # "torch": keep PyTorch's default, which is Torch7's U(-1/sqrt(fan_in), 1/sqrt(fan_in))
+        if bias_init is not None:
+            nn.init.constant_(layer.bias, bias_init)
+        elif weight_init != "torch":
+            nn.init.zeros_(layer.bias)
+
+
+def sample_actions(probs: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+    """Inverse-CDF sampling of one action per row of probs (K, A), with uniforms (K,) ~ U[0, 1):
+    a few microseconds, unlike torch.multinomial's per-call overhead. An action of probability
+    0 is never drawn."""
+    cdf = probs.cumsum(axis=1)
+    return np.minimum((cdf <= uniforms[:, None] * cdf[:, -1:]).sum(axis=1), probs.shape[1] - 1)
+
+
+def n_step_returns(
+    rewards: np.ndarray,
+    dones: np.ndarray,
+    done_values: np.ndarray,
+    bootstrap_values: np.ndarray,
+    gamma: float,
+) -> np.ndarray:
+    """The n-step returns of a rollout of K envs, all (T, K) but bootstrap_values (K,):
+    G_t = r_t + gamma * G_{t+1} from G_T = V(s_T), the last state's value, except where an
+    episode ended at step t (dones): there G_t = r_t + gamma * done_values_t, which is 0 after a
+    terminal state and V(last state) after a truncation."""
+    returns = np.empty_like(rewards)
+    g = bootstrap_values
+    for t in range(len(rewards) - 1, -1, -1):
+        g = rewards[t] + gamma * np.where(dones[t], done_values[t], g)
+        returns[t] = g
+    return returns
+
+
+def a3c_loss(
+    log_probs: torch.Tensor,
+    actions: torch.Tensor,
+    values: torch.Tensor,
+    returns: torch.Tensor,
+    ent_coef: float,
+    vf_coef: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The A3C loss summed over the rollout (Algorithm 1): policy gradient with the advantage
+    not back-propagated, minus beta * entropy, plus lambda_V * 0.5 * (G - V)^2.
+    Returns (loss, policy_loss, value_loss, entropy), the last three before their factors."""
+    advantages = returns - values
+    policy_loss = -(log_probs.gather(1, actions[:, None]).squeeze(1) * advantages.detach()).sum()
+    entropy = -(log_probs.exp() * log_probs).sum()
+    value_loss = 0.5 * advantages.pow(2).sum()
+    return policy_loss - ent_coef * entropy + vf_coef * value_loss, policy_loss, value_loss, entropy
+
+
+def worker(worker_id: int, shared: Shared, args: Args) -> None:
+    """One actor-learner (Algorithm 1): sync, act t_max steps, one batched update, repeat.
+    With --envs-per-worker K it steps K envs, acting on all K with one batched forward, and
+    learns from the K x t_max rollout in one update. The rollout ends early only when every
+    env's episode ends at the same step: with K = 1, at the end of the episode, as in the thesis."""
+    seed = process_seed(args.seed, worker_id)
+    seed_everything(seed)
+    rng = np.random.default_rng(seed)
+    envs = make_vector_env(args.env, args.envs_per_worker)
+    num_envs = envs.num_envs
+    model = ActorCritic(envs.single_action_space.n, args).to(memory_format=torch.channels_last)
+    params = list(model.parameters())
+    # the frames of the rollout (t_max + 1, K, 4, 84, 84), each step's K frames channels-last
+    # like the network's input (see ActorCritic), and any steps' rows a view of one batch
+    channels, height, width = envs.single_observation_space.shape
+    obs_buf = torch.zeros((args.t_max + 1, num_envs, height, width, channels), dtype=torch.uint8)
+    obs_buf = obs_buf.permute(0, 1, 4, 2, 3)
+    actions = np.zeros((args.t_max, num_envs), dtype=np.int64)
+    rewards = np.zeros((args.t_max, num_envs), dtype=np.float32)
+    dones = np.zeros((args.t_max, num_envs), dtype=bool)  # an episode ended at this step
+    done_values = np.zeros((args.t_max, num_envs), dtype=np.float32)  # V(s_last) if truncated
+    stats = shared.worker_stats(worker_id)  # Shared.STATS, added to by name
+    obs, _ = envs.reset(seed=seed)
+    obs_buf[0].copy_(torch.from_numpy(obs))
+    # --precision: the acting and the learning forward passes under bf16 autocast or not, their
+    # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
+    act_precision, learn_precision = autocast_contexts(args.precision)
+    # where it pays, the learning forward over obs_buf takes back the conv and linear outputs
+    # that acting computed (same theta', same states) instead of computing them again
+    replay_activations(model, obs_buf, args)
+
+    while shared.keep_running():
+        global_step = shared.global_step()
+        if global_step >= args.total_timesteps:
+            break
+        with torch.no_grad():
+            torch._foreach_copy_(params, shared.params)  # theta' <- theta
+        # act with the synced local network for t_max steps (or until every episode ends)
+        dones[:] = False
+        with torch.inference_mode(), act_precision:
+            for t in range(args.t_max):
+                log_probs, _ = model(obs_buf[t])
+                action = sample_actions(log_probs.float().exp().numpy(), rng.random(num_envs))
+                # an ended episode's env returns its next episode's first frame (autoreset)
+                obs, reward, terminated, truncated, info = envs.step(action)
+                actions[t], rewards[t] = action, reward
+                obs_buf[t + 1].copy_(torch.from_numpy(obs))
+                ended = terminated | truncated
+                if ended.any():
+                    dones[t] = ended
+                    episodes = info["final_info"]["_episode"]
+                    stats.add(
+                        episodes=int(episodes.sum()),
+                        return_sum=float(info["final_info"]["episode"]["r"][episodes].sum()),
+                        length_sum=int(info["final_info"]["episode"]["l"][episodes].sum()),
+                    )
+                    done_values[t] = 0.0
+                    cut = truncated & ~terminated  # a time limit: bootstrap from V(s_last)
+                    if cut.any():
+                        last_obs = torch.from_numpy(np.stack(info["final_obs"][cut]))
+                        done_values[t, cut] = model(last_obs)[1].float().numpy()
+                    if ended.all():
+                        break
+        n = t + 1
+        # one batched forward/backward over the n x K states; row n gives V(s_n) to bootstrap
+        # from, unless every episode has ended there
+        bootstrap = not dones[n - 1].all()
+        with learn_precision:
+            log_probs, values = model(obs_buf[: n + 1 if bootstrap else n].flatten(0, 1))
+        log_probs, values = log_probs.float(), values.float()  # the loss in float32
+        bootstrap_values = values[n * num_envs :].detach().numpy() if bootstrap else 0.0
+        returns = n_step_returns(
+            rewards[:n], dones[:n], done_values[:n], bootstrap_values, args.gamma
+        )
+        loss, policy_loss, value_loss, entropy = a3c_loss(
+            log_probs[: n * num_envs],
+            torch.from_numpy(actions[:n].ravel()),
+            values[: n * num_envs],
+            torch.from_numpy(returns.ravel()),
+            args.ent_coef,
+            args.vf_coef,
+        )
+        grads = torch.autograd.grad(loss, params)
+        grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
+        shared.optimizer.step(grads, annealed_lr(args, global_step))
+
+        shared.steps[worker_id] += n * num_envs
+        stats.add(
+            updates=1,
+            policy_loss=policy_loss.item(),
+            value_loss=value_loss.item(),
+            entropy=entropy.item(),
+            grad_norm=grad_norm,
+        )
+        obs_buf[0].copy_(obs_buf[n])  # the next rollout starts where this one stopped
+    envs.close()
+
+
+DATA_INIT_ENVS, DATA_INIT_STEPS = 16, 32  # --prototype-init data: 512 states of random play
+
+
+def initialize_network(model: ActorCritic, args: Args) -> None:
+    """A new run's global network, before the workers start: with --prototype-init data, its
+    prototypes placed on the features it gives the states of DATA_INIT_STEPS steps of
+    DATA_INIT_ENVS envs under a uniformly random policy (the near-uniform policy an untrained
+    prototype head plays), seeded by --seed."""
+    if args.prototype_init != "data":
+        return
+    rng = np.random.default_rng(args.seed)
+    frames = random_play_frames(args.env, rng, args.seed)
+    with torch.no_grad():
+        model.place_prototypes(model.features(torch.from_numpy(frames)), rng)
+
+
+def random_play_frames(env_id: str, rng: np.random.Generator, seed: int) -> np.ndarray:
+    """The frames (DATA_INIT_STEPS * DATA_INIT_ENVS, 4, 84, 84) of a uniformly random policy."""
+    envs = make_vector_env(env_id, DATA_INIT_ENVS)
+    obs, _ = envs.reset(seed=seed)
+    frames = [obs.copy()]  # copies: a vector env may return the same buffer every step
+    for _ in range(DATA_INIT_STEPS - 1):
+        obs, *_ = envs.step(rng.integers(envs.single_action_space.n, size=envs.num_envs))
+        frames.append(obs.copy())
+    envs.close()
+    return np.concatenate(frames)
+
+
+AGENT = Agent(
+    script="future_work/" + os.path.basename(__file__),  # checkpoints name it so
+    Args=Args,
+    make_env=make_env,
+    network=ActorCritic,
+    network_args=NETWORK_ARGS,
+    worker=worker,
+    initialize=initialize_network,
+)
+
+
+def main() -> int:
+    """Train (a3c_runtime.a3c.train), or play a checkpoint's episodes with --evaluate; see
+    --help for every flag."""
+    return run(AGENT)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
