@@ -2,36 +2,10 @@
 (bf16-learn: only the learning pass) while the weights, optimizer statistics, returns and the
 loss stay float32."""
 
-import warnings
-
 import a3c_runtime as runtime
 import pytest
 import torch
 from conftest import SCRIPTS, TINY, load_script, read_evaluations, run_script, shared_for, tiny_args
-
-
-@pytest.mark.parametrize("precision", ["bf16", "bf16-learn"])
-@pytest.mark.parametrize("name", SCRIPTS)
-def test_bf16_worker_learns_in_process_with_float32_weights(name, precision, one_thread):
-    module = load_script(name)
-    args = tiny_args(module, total_timesteps=60, t_max=5, precision=precision)
-    shared = shared_for(module, args)
-    before = [p.detach().clone() for p in shared.params]
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # normal runs print no warnings
-        module.worker(0, shared, args)
-    assert 60 <= shared.global_step() < 60 + args.t_max
-    assert shared.stats[0, 3] >= 60 // 5  # updates
-    assert torch.isfinite(shared.stats[0]).all()
-    # every parameter learns but the biases the spatial softmax ignores (see the fp32 test)
-    no_gradient = {"a3c_ss": {"torso.2.bias"}, "a3c_ww": {"convs.2.bias"}}.get(name, set())
-    after = dict(shared.model.named_parameters())
-    for key, old in zip(after, before, strict=True):
-        new = after[key].detach()
-        assert new.dtype == torch.float32 and torch.isfinite(new).all(), key
-        assert key in no_gradient or not torch.equal(old, new), f"{key} did not learn"
-    for statistic in shared.optimizer.state_dict()["square_avg"]:  # RMSprop's, float32
-        assert statistic.dtype == torch.float32 and torch.isfinite(statistic).all()
 
 
 @pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm"])
