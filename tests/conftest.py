@@ -87,11 +87,14 @@ def one_thread():
     torch.set_num_threads(threads)
 
 
-def main_exit(module: ModuleType, argv: list[str], monkeypatch, capsys) -> tuple[int, str]:
-    """Run the script's main() in process, as `python agents/<script>.py *argv` would."""
+def main_exit(
+    module: ModuleType, argv: list[str], monkeypatch, capsys, keep_out: bool = False
+) -> tuple[int, str]:
+    """Run the script's main() in process, as `python agents/<script>.py *argv` would: (its exit
+    code, its stderr); with keep_out, stdout stays in capsys for the caller (and stderr too)."""
     monkeypatch.setattr(sys, "argv", [f"{module.__name__}.py", *argv])
     try:
         code = module.main()
-    except SystemExit as e:  # tyro's own errors
+    except SystemExit as e:  # tyro's own errors, --help
         code = e.code
-    return code, capsys.readouterr().err
+    return code, "" if keep_out else capsys.readouterr().err

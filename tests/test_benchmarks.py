@@ -1,8 +1,9 @@
 """The benchmark scripts run and report what they promise. Their numbers are not checked here:
-speed is measured by running the scripts themselves, never by timed tests."""
+speed is measured by running the scripts themselves, never by timed tests. In process: each
+script's main() with its command line."""
 
+import importlib.util
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -11,14 +12,48 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+def benchmark(name: str):
+    """benchmarks/<name>.py as a module (once per session)."""
+    key = f"benchmark_{name}"
+    if key not in sys.modules:
+        spec = importlib.util.spec_from_file_location(key, ROOT / "benchmarks" / f"{name}.py")
+        sys.modules[key] = module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    return sys.modules[key]
+
+
+class Result:
+    def __init__(self, returncode: int, stdout: str, stderr: str):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def run(script: str, *args: str, monkeypatch, capsys) -> Result:
+    """`python benchmarks/<script> *args` from the repository root, in process."""
+    name = Path(script).stem
+    module = benchmark(name)
+    monkeypatch.chdir(ROOT)
+    monkeypatch.setattr(sys, "argv", [script, *args])
+    try:
+        code = module.main() or 0
+    except SystemExit as e:  # argparse's errors, or SystemExit("message")
+        code = e.code
+        if isinstance(code, str):
+            print(code, file=sys.stderr)
+            code = 1
+    out, err = capsys.readouterr()
+    return Result(code, out, err)
+
+
+def test_env_throughput_reports_every_configuration(monkeypatch, capsys):
+    result = run(
+        "env_throughput.py",
+        "--seconds",
+        "0.05",
+        "--repeats",
+        "1",
+        monkeypatch=monkeypatch,
+        capsys=capsys,
     )
-
-
-def test_env_throughput_reports_every_configuration():
-    result = run("benchmarks/env_throughput.py", "--seconds", "0.05", "--repeats", "1")
     assert result.returncode == 0, result.stderr
     assert "gym.make(Catch-v0)" in result.stdout
     for n in (1, 64, 1024):
@@ -26,10 +61,12 @@ def test_env_throughput_reports_every_configuration():
 
 
 @pytest.mark.slow
-def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting():
+def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting(monkeypatch, capsys):
     result = run(
-        "benchmarks/a3c_throughput.py", "agents/a3c_lstm.py", "--seconds", "3", "--no-baseline",
-        "--envs-per-worker", "1", "2", "--precision", "bf16", "--replay", "on", "off",
+        "a3c_throughput.py", "agents/a3c_lstm.py", "--seconds", "1", "--no-baseline",
+        "--eval-episodes", "1", "--envs-per-worker", "1", "2", "--precision", "bf16",
+        "--replay", "on", "off",
+        monkeypatch=monkeypatch, capsys=capsys,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     rows = re.findall(
@@ -46,16 +83,17 @@ def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting():
 
 
 @pytest.mark.slow
-def test_a3c_throughput_compares_the_atari_backends_with_the_two_ceilings():
+def test_a3c_throughput_compares_the_atari_backends_with_the_two_ceilings(monkeypatch, capsys):
     pytest.importorskip("ale_py")
     result = run(
-        "benchmarks/a3c_throughput.py", "--env", "BreakoutNoFrameskip-v4", "--seconds", "2",
+        "a3c_throughput.py", "--env", "BreakoutNoFrameskip-v4", "--seconds", "1",
         "--no-baseline", "--envs-per-worker", "2", "1", "--precision", "bf16", "--eval-episodes",
         "1", "--env-backend", "native", "python", "--env-threads", "1", "2", "--ceilings",
+        monkeypatch=monkeypatch, capsys=capsys,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     for k in (2, 1):
-        rows = re.findall(rf"^a3c_ff +{k} +bf16 +on +(\S+) +([\d,]+) ", result.stdout, re.M)
+        rows = re.findall(rf"^a3c_ff +{k} +bf16 +script +(\S+) +([\d,]+) ", result.stdout, re.M)
         assert [row[0] for row in rows] == ["native/1", "native/2", "python"]
     assert re.search(r"'python', 1\): [\d.]+x$", result.stdout, re.M)  # against native/1
     # one bound per K, its network ceiling measured at that K, each setting against its own
@@ -82,14 +120,14 @@ def test_a3c_throughput_compares_the_atari_backends_with_the_two_ceilings():
         (["--ceilings"], "--ceilings needs an ALE game"),
     ],
 )
-def test_a3c_throughput_rejects_bad_input(args, message):
-    result = run("benchmarks/a3c_throughput.py", *args)
+def test_a3c_throughput_rejects_bad_input(args, message, monkeypatch, capsys):
+    result = run("a3c_throughput.py", *args, monkeypatch=monkeypatch, capsys=capsys)
     assert result.returncode != 0
     assert message in result.stderr
 
 
-def test_a3c_step_profile_reports_every_phase():
-    result = run("benchmarks/a3c_step_profile.py", "--seconds", "1")
+def test_a3c_step_profile_reports_every_phase(monkeypatch, capsys):
+    result = run("a3c_step_profile.py", "--seconds", "1", monkeypatch=monkeypatch, capsys=capsys)
     assert result.returncode == 0, result.stderr
     shares = re.findall(r"^[a-z ]+ +[\d.]+ us/step +([\d.]+)%$", result.stdout, re.M)
     assert len(shares) == 7
@@ -104,10 +142,10 @@ def test_a3c_step_profile_reports_every_phase():
 
 
 @pytest.mark.slow
-def test_fault_injection_resumes_runs_without_losing_a_checkpoint():
+def test_fault_injection_resumes_runs_without_losing_a_checkpoint(monkeypatch, capsys):
     result = run(
-        "benchmarks/fault_injection.py", "--trials", "2", "--total-timesteps", "20000",
-        "--faults", "SIGKILL main", "SIGTERM", timeout=600,
+        "fault_injection.py", "--trials", "2", "--total-timesteps", "20000",
+        "--faults", "SIGKILL main", "SIGTERM", monkeypatch=monkeypatch, capsys=capsys,
     )  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
     assert (

@@ -104,11 +104,6 @@ def test_catch_env_long_description_covers_install_usage_and_play() -> None:
         assert needed in text, needed
 
 
-def test_slow_marker_is_registered() -> None:
-    markers = pyproject(ROOT)["tool"]["pytest"]["ini_options"]["markers"]
-    assert any(marker.startswith("slow:") for marker in markers)
-
-
 def _setuptools_version() -> tuple[int, ...] | None:
     try:
         version = importlib.metadata.version("setuptools")

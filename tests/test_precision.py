@@ -2,10 +2,9 @@
 (bf16-learn: only the learning pass) while the weights, optimizer statistics, returns and the
 loss stay float32."""
 
-import a3c_runtime as runtime
 import pytest
 import torch
-from conftest import SCRIPTS, TINY, load_script, read_evaluations, run_script, shared_for, tiny_args
+from conftest import SCRIPTS, load_script, shared_for, tiny_args
 
 
 @pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm"])
@@ -61,15 +60,3 @@ def test_each_forward_pass_runs_in_its_precision(
     acting_calls = {autocast for inference, autocast in calls if inference}
     learning_calls = {autocast for inference, autocast in calls if not inference}
     assert acting_calls == {acting} and learning_calls == {learning}, calls
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm"])
-def test_a_tiny_bf16_run_trains_and_evaluates(name, tmp_path):
-    run_dir = tmp_path / "run"
-    flags = ["--total-timesteps", "1000", "--eval-interval", "500", "--run-dir", str(run_dir)]
-    result = run_script(name, *TINY, *flags, "--precision", "bf16")
-    assert result.returncode == 0, result.stderr
-    assert "warning" not in result.stderr.lower() or not runtime.native_bf16()
-    rows = read_evaluations(run_dir)
-    assert rows and int(rows[-1]["global_step"]) >= 1000

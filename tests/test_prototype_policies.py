@@ -4,7 +4,6 @@ scripts end to end on tiny budgets."""
 
 import itertools
 import math
-import subprocess
 from pathlib import Path
 
 import a3c_runtime as runtime
@@ -12,12 +11,11 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from conftest import evaluation_steps, load_script, run_script
+from conftest import load_script, main_exit, shared_for
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ["--num-workers", "2", "--eval-episodes", "2", "--log-interval", "1"]
 
 
 def load(name: str):
@@ -375,45 +373,58 @@ def test_bad_head_flags_are_usage_errors(lpq, glpq, name, flags):
 # ---------------------------------------------------------------------------------------------
 # End to end, tiny budgets (the flags of tests/test_runtime_a3c.py)
 # ---------------------------------------------------------------------------------------------
-def run(name: str, *flags: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return run_script(name, *flags, timeout=timeout)
+def saved_checkpoint(name: str, folder: Path, *flags: str) -> Path:
+    """A checkpoint of the script's network built with these flags, as a run at step 0 writes it."""
+    import tyro
+
+    module = load(name)
+    args = runtime.resolve_defaults(tyro.cli(module.Args, args=["--num-workers", "1", *flags]))
+    path = folder / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared_for(module, args), args, 0.0, module.AGENT.script)
+    return path
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize(
-    ("name", "flags"),
-    [("a3c_lpq", []), ("a3c_glpq", []), ("a3c_glpq", ["--temperature", "trainable"])],
-)
-def test_catch_end_to_end(tmp_path, name, flags):
-    budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
-    result = run(name, *TINY, *budget, *flags)
-    assert result.returncode == 0, result.stderr
-    steps = evaluation_steps(tmp_path)
-    assert steps[0] == 0 and steps[-1] >= 2000
-    assert result.stdout.strip().splitlines()[-1].startswith("done: final eval")
-    if flags:
-        return
-    # GLPQ's evaluate mode sets the temperature from the checkpoint's step (a diff from FF)
-    checkpoint = tmp_path / "checkpoint.pt"
-    if name == "a3c_glpq":
-        result = run(name, "--evaluate", str(checkpoint), "--eval-episodes", "2")
-        assert result.returncode == 0, result.stderr
-        assert "over 2 episodes" in result.stdout
-    # the head's flags are part of the experiment: a different one cannot resume it
-    result = run(name, "--resume", str(checkpoint), "--distance", "manhattan")
-    assert result.returncode == 2
-    assert "--distance manhattan differs from the run's squared-euclidean" in result.stderr
-
-
-@pytest.mark.slow
 @pytest.mark.parametrize("name", ["a3c_lpq", "a3c_glpq"])
-def test_atari_breakout_runs(tmp_path, name):
-    pytest.importorskip("ale_py")
-    flags = ["--env", "BreakoutNoFrameskip-v4", "--total-timesteps", "2000", "--eval-episodes", "1"]
-    result = run(name, *flags, "--num-workers", "2", "--run-dir", str(tmp_path), timeout=180)
-    assert result.returncode == 0, result.stderr
-    steps = evaluation_steps(tmp_path)
-    assert steps[0] == 0 and steps[-1] >= 2000
+def test_the_heads_flags_are_part_of_the_experiment(tmp_path, monkeypatch, capsys, name):
+    """--evaluate plays the checkpoint (GLPQ's temperature from the checkpoint's step, a diff
+    from FF); a different head cannot resume it."""
+    checkpoint = saved_checkpoint(name, tmp_path)
+    argv = ["--evaluate", str(checkpoint), "--eval-episodes", "2"]
+    code, err = main_exit(load(name), argv, monkeypatch, capsys, keep_out=True)
+    assert code == 0, err
+    assert "over 2 episodes" in capsys.readouterr().out
+    argv = ["--resume", str(checkpoint), "--distance", "manhattan"]
+    code, err = main_exit(load(name), argv, monkeypatch, capsys)
+    assert code == 2
+    assert "--distance manhattan differs from the run's squared-euclidean" in err
+
+
+AS_RUN = ["--mu-form", "code", "--temperature", "trainable", "--tau-parametrization", "plain"]
+
+
+@pytest.mark.parametrize("scope", ["policy", "policy-and-entropy"])
+def test_glpq_as_run_learns_and_resumes_only_as_run(
+    tmp_path, monkeypatch, capsys, scope, one_thread
+):
+    """The as-run form (thesis-notes.md "As run") in the GLPQ worker loop: it learns, tau
+    included; the form is part of the experiment: the text form cannot resume it."""
+    import tyro
+
+    glpq = load("a3c_glpq")
+    flags = [*AS_RUN, "--tau-loss-scope", scope]
+    args = runtime.resolve_defaults(
+        tyro.cli(glpq.Args, args=[*flags, "--num-workers", "1", "--total-timesteps", "100",
+                                  "--t-max", "5"])
+    )  # fmt: skip
+    torch.manual_seed(0)
+    shared = shared_for(glpq, args)
+    tau = shared.model.plain_tau.item()
+    glpq.worker(0, shared, args)
+    assert shared.global_step() >= 100 and shared.model.plain_tau.item() != tau
+    checkpoint = saved_checkpoint("a3c_glpq", tmp_path, *flags)
+    argv = ["--resume", str(checkpoint), "--mu-form", "text"]
+    code, err = main_exit(glpq, argv, monkeypatch, capsys)
+    assert code == 2 and "--mu-form text differs from the run's code" in err
 
 
 def test_glpq_rejects_the_negative_distance(glpq, capsys):
@@ -556,21 +567,6 @@ def test_trainable_tau_as_run_and_the_loss_scope_flags(glpq):
     for flags in ({"temperature": "trainable", "p_start": 0.2}, {"tau": -1.0}):
         with pytest.raises(runtime.UsageError):
             glpq.ActorCritic(3, glpq.Args(**{"temperature": "fixed", **flags}))
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("scope", ["policy", "policy-and-entropy"])
-def test_glpq_as_run_end_to_end(tmp_path, scope):
-    as_run = ["--mu-form", "code", "--tau-loss-scope", scope, "--temperature", "trainable",
-              "--tau-parametrization", "plain"]  # fmt: skip
-    budget = ["--total-timesteps", "1500", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
-    result = run("a3c_glpq", *TINY, *budget, *as_run)
-    assert result.returncode == 0, result.stderr
-    assert evaluation_steps(tmp_path)[-1] >= 1500
-    # the form is part of the experiment: the text form cannot resume it
-    result = run("a3c_glpq", "--resume", str(tmp_path / "checkpoint.pt"), "--mu-form", "text")
-    assert result.returncode == 2
-    assert "--mu-form text differs from the run's code" in result.stderr
 
 
 def test_tau_loss_scope(glpq):

@@ -5,15 +5,16 @@ end-to-end runs of each script on tiny budgets (Catch-v0 and BreakoutNoFrameskip
 
 import math
 import re
-import subprocess
 from pathlib import Path
 
+import a3c_runtime as runtime
 import numpy as np
 import pytest
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-from conftest import evaluation_steps, load_script, run_script
+import tyro
+from conftest import load_script, main_exit, shared_for
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = ("a3c_lws", "a3c_ss", "a3c_ww", "a3c_lstm")
@@ -674,54 +675,45 @@ def test_lstm_evaluation_carries_a_state_per_episode():
 # ---------------------------------------------------------------------------------------------
 # End to end: each script on tiny budgets, with the flags of tests/test_runtime_a3c.py
 
-TINY = ["--num-workers", "2", "--eval-interval", "500", "--eval-episodes", "2"]
+
+def saved_checkpoint(name: str, folder: Path, *flags: str) -> Path:
+    """A checkpoint of the script's network built with these flags, as a run at step 0 writes it
+    (no training: what is tested is what the checkpoint holds and how the script reads it)."""
+    module = load_script(name)
+    args = runtime.resolve_defaults(tyro.cli(module.Args, args=["--num-workers", "1", *flags]))
+    path = folder / "checkpoint.pt"
+    shared = shared_for(module, args)
+    runtime.save_checkpoint(path, shared, args, 0.0, module.AGENT.script)
+    return path
 
 
-def run(name: str, *flags: str, timeout: float = 180) -> subprocess.CompletedProcess:
-    return run_script(name, *flags, timeout=timeout)
+@pytest.mark.parametrize("name", ["a3c_lws", "a3c_lstm"])
+def test_evaluate_plays_a_checkpoint_with_lws_buffers_and_lstm_states(
+    tmp_path, monkeypatch, capsys, name
+):
+    """--evaluate is the runtime's; LWS's fixed-centroid buffers and LSTM's recurrent states are
+    the variants' own, so the checkpoint's network must play whole episodes."""
+    flags = ["--no-lws-trainable"] if name == "a3c_lws" else []
+    checkpoint = saved_checkpoint(name, tmp_path, *flags)
+    argv = ["--evaluate", str(checkpoint), "--eval-episodes", "3"]
+    code, err = main_exit(load_script(name), argv, monkeypatch, capsys, keep_out=True)
+    out = capsys.readouterr().out
+    assert code == 0, err
+    assert len(re.findall(r"^episode \d: score [01]$", out, re.M)) == 3
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", VARIANTS)
-def test_variant_runs_on_catch(tmp_path, name):
-    result = run(name, *TINY, "--total-timesteps", "1000", "--run-dir", str(tmp_path))
-    assert result.returncode == 0, result.stderr
-    steps = evaluation_steps(tmp_path)
-    assert steps[0] == 0 and steps[-1] >= 1000 and len(steps) >= 3
-    assert result.stdout.strip().splitlines()[-1].startswith("done: final eval")
-    if name not in ("a3c_lws", "a3c_lstm"):
-        return  # --evaluate is the runtime's; LWS's buffers and LSTM's states are checked here
-    result = run(name, "--evaluate", str(tmp_path / "checkpoint.pt"), "--eval-episodes", "3")
-    assert result.returncode == 0, result.stderr
-    assert len(re.findall(r"^episode \d: score [01]$", result.stdout, re.M)) == 3
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", VARIANTS)
-def test_variant_runs_on_breakout(tmp_path, name):
-    pytest.importorskip("ale_py")
-    flags = ["--env", "BreakoutNoFrameskip-v4", "--total-timesteps", "300", "--eval-episodes", "1"]
-    result = run(name, *flags, "--num-workers", "2", "--run-dir", str(tmp_path))
-    assert result.returncode == 0, result.stderr
-    steps = evaluation_steps(tmp_path)
-    assert steps[0] == 0 and steps[-1] >= 300
-
-
-@pytest.mark.slow
-def test_lws_fixed_group_wise_centroids_run_and_resume_only_with_their_seed(tmp_path):
+def test_lws_fixed_group_wise_centroids_resume_only_with_their_seed(tmp_path, monkeypatch, capsys):
     """Fixed centroids come from --seed: resuming with another seed would silently change them."""
-    flags = ["--no-lws-trainable", "--lws-centroids", "group", "--total-timesteps", "500"]
-    result = run("a3c_lws", *TINY, *flags, "--run-dir", str(tmp_path))
-    assert result.returncode == 0, result.stderr
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
-    assert checkpoint["model"]["torso.0.centroids"].shape == (3, 1, 2)  # buffers, saved
-    resume = ["--resume", str(tmp_path / "checkpoint.pt"), "--total-timesteps", "1000"]
-    result = run("a3c_lws", *TINY, *flags[:3], "--seed", "2", *resume)
-    assert result.returncode == 2
-    assert "--seed 2 differs from the run's 1" in result.stderr
+    flags = ["--no-lws-trainable", "--lws-centroids", "group"]
+    checkpoint = saved_checkpoint("a3c_lws", tmp_path, *flags)
+    saved = torch.load(checkpoint, weights_only=False)
+    assert saved["model"]["torso.0.centroids"].shape == (3, 1, 2)  # buffers, saved
+    argv = [*flags, "--seed", "2", "--resume", str(checkpoint), "--total-timesteps", "1000"]
+    code, err = main_exit(load_script("a3c_lws"), argv, monkeypatch, capsys)
+    assert code == 2 and "--seed 2 differs from the run's 1" in err
 
 
-# The thesis's figures as run (thesis-notes.md "As run"): tiny runs with the non-default flags
+# The thesis's figures as run (thesis-notes.md "As run"): the non-default flags
 AS_RUN = {
     "a3c_ss": ["--conv-layout", "final", "--ss-temperature", "global",
                "--no-ss-trainable-temperature", "--optimizer", "adam", "--adam-beta2", "0.999"],
@@ -731,31 +723,30 @@ AS_RUN = {
                 "--lws-kcps", "4", "--lws-centroid-init", "grid", "--lws-centroids", "group",
                 "--no-lws-trainable"],
 }  # fmt: skip
-TINIEST = ["--num-workers", "1", "--total-timesteps", "200", "--eval-interval", "100",
-           "--eval-episodes", "1"]  # fmt: skip
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", AS_RUN)
-def test_as_run_flags_run_evaluate_and_resume_only_with_the_same_network(tmp_path, name):
-    result = run(name, *TINIEST, *AS_RUN[name], "--run-dir", str(tmp_path), timeout=60)
-    assert result.returncode == 0, result.stderr
-    assert evaluation_steps(tmp_path)[-1] >= 200
-    result = run(name, "--evaluate", str(tmp_path / "checkpoint.pt"), "--eval-episodes", "1")
-    assert result.returncode == 0, result.stderr  # the checkpoint's flags rebuild its network
+def test_as_run_flags_evaluate_and_resume_only_with_the_same_network(
+    tmp_path, monkeypatch, capsys, name
+):
+    module = load_script(name)
+    checkpoint = saved_checkpoint(name, tmp_path, *AS_RUN[name])
+    argv = ["--evaluate", str(checkpoint), "--eval-episodes", "1"]
+    code, err = main_exit(module, argv, monkeypatch, capsys)
+    assert code == 0, err  # the checkpoint's flags rebuild its network
     # a resumed run keeps its network's flags: left out, they come from the checkpoint; one
     # given with another value is refused
     flag, value, default = ("--conv-layout", "final", "ff") if name != "a3c_lws" else (
         "--lws-padding", "same", "valid")  # fmt: skip
-    checkpoint = str(tmp_path / "checkpoint.pt")
-    result = run(name, "--resume", checkpoint, "--total-timesteps", "400", timeout=60)
-    assert result.returncode == 0, result.stderr
-    result = run(name, "--resume", checkpoint, flag, default, timeout=60)
-    assert result.returncode == 2
-    assert f"{flag} {default} differs from the run's {value}" in result.stderr
+    loaded = runtime.load_checkpoint(str(checkpoint), module.AGENT)
+    args = module.Args(resume=str(checkpoint))
+    resumed = runtime.resume.resumed_args(module.AGENT, loaded, args, set())
+    assert getattr(resumed, flag[2:].replace("-", "_")) == value
+    code, err = main_exit(module, ["--resume", str(checkpoint), flag, default], monkeypatch, capsys)
+    assert code == 2
+    assert f"{flag} {default} differs from the run's {value}" in err
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "flags", "message"),
     [
@@ -770,11 +761,16 @@ def test_as_run_flags_run_evaluate_and_resume_only_with_the_same_network(tmp_pat
         ("a3c_lws", ["--lws-centroid-init", "grid"], "error: --lws-centroid-init grid needs"),
     ],
 )
-def test_bad_as_run_flags_exit_2_naming_the_valid_values(tmp_path, name, flags, message):
-    result = run(name, *flags, "--total-timesteps", "100", "--run-dir", str(tmp_path), timeout=60)
-    assert result.returncode == 2
+def test_bad_as_run_flags_exit_2_naming_the_valid_values(
+    tmp_path, monkeypatch, capsys, name, flags, message
+):
+    monkeypatch.chdir(tmp_path)
+    code, err = main_exit(
+        load_script(name), [*flags, "--total-timesteps", "100"], monkeypatch, capsys
+    )
+    assert code == 2 and list(tmp_path.iterdir()) == []
     if message.startswith("error: "):  # ours: one line
-        assert result.stderr.strip().splitlines() == [result.stderr.strip()], result.stderr
-        assert result.stderr.startswith(message), result.stderr
+        assert err.strip().splitlines() == [err.strip()], err
+        assert err.startswith(message), err
     else:  # tyro's box around a Literal's choices; unwrap it
-        assert message in re.sub(r"[\s│]+", " ", result.stderr), result.stderr
+        assert message in re.sub(r"[\s│|]+", " ", err), err
