@@ -6,8 +6,12 @@ rate, and can be held running to test interrupts. Two tiny sweeps of the real ag
 check the local and the Ray backend end to end.
 """
 
+import contextlib
 import csv
+import json
 import math
+import multiprocessing
+import multiprocessing.synchronize
 import signal
 import subprocess
 import sys
@@ -67,6 +71,36 @@ FAKE_AGENT = textwrap.dedent(
 )
 
 
+# an agent script as the real ones are built: a tyro Args dataclass, run under a __main__ guard
+ARGS_AGENT = textwrap.dedent(
+    """
+    import os
+    from dataclasses import dataclass
+    from typing import Literal
+
+    import tyro
+
+
+    @dataclass
+    class Args:
+        learning_rate: float = 1e-3
+        total_timesteps: int = 700
+        seed: int = 1
+        run_dir: str = "run"
+        num_workers: int = 1
+        anneal_lr: bool = True
+        scale_obs: bool | None = None
+        activation: Literal["relu", "elu"] = "relu"
+
+
+    if __name__ == "__main__":
+        args = tyro.cli(Args)
+        with open(os.path.join(args.run_dir, "evaluations.csv"), "w") as f:
+            f.write(f"global_step,mean_return\\n0,0.0\\n{args.total_timesteps},0.5\\n")
+    """
+)
+
+
 def fake_scores(learning_rate: float) -> tuple[float, float]:
     """The fake agent's (score, score_all): returns level * i / 7, i = 0..7; the final 5 are
     i = 3..7 (sum 25), all 8 sum to 28."""
@@ -78,6 +112,14 @@ def fake_scores(learning_rate: float) -> tuple[float, float]:
 def fake_agent(tmp_path: Path) -> Path:
     path = tmp_path / "fake_agent.py"
     path.write_text(FAKE_AGENT)
+    return path
+
+
+@pytest.fixture
+def args_agent(tmp_path: Path) -> Path:
+    # a file name of its own: load_script keeps one module per file name in this process
+    path = tmp_path / f"args_agent_{tmp_path.name}.py"
+    path.write_text(ARGS_AGENT)
     return path
 
 
@@ -223,6 +265,40 @@ def test_result_rows_for_each_way_a_run_ends():
     assert stopped["status"] == "failed" and "stopped by SIGTERM" in stopped["error"]
     missing = sweep.result_row(run, {**base, "evaluations_csv": None})
     assert missing["status"] == "failed" and "no evaluations.csv" in missing["error"]
+
+
+# tyro's error for a3c_ff.py --lr 0.01, as a run's stderr.log holds it
+TYRO_BOX = """\
+╭─ Unrecognized options ──────────────────────────╮
+│ Unrecognized options: --lr, 0.01                │
+│ ─────────────────────────────────────────────── │
+│ Perhaps you meant:                              │
+│     --anneal-lr, --no-anneal-lr                 │
+│         (default: True)                         │
+│ ─────────────────────────────────────────────── │
+│ For full helptext, run a3c_ff.py --help         │
+╰─────────────────────────────────────────────────╯
+"""
+
+
+def test_a_failed_runs_error_is_its_last_meaningful_line():
+    run = sweep.plan_runs(CONFIG, 1)[0]
+    failed = {"returncode": 2, "interrupted": False, "wall_time_s": 1.0, "stdout_tail": "",
+              "evaluations_csv": None}  # fmt: skip
+    row = sweep.result_row(run, {**failed, "stderr_tail": TYRO_BOX})
+    assert row["error"] == "exit code 2: Unrecognized options: --lr, 0.01"
+    traceback = "Traceback (most recent call last):\n  ...\nRuntimeError: boom\n\n──────\n"
+    row = sweep.result_row(run, {**failed, "stderr_tail": traceback})
+    assert row["error"] == "exit code 2: RuntimeError: boom"  # borders and blank lines skipped
+    long = sweep.result_row(run, {**failed, "stderr_tail": "error: " + "é" * 1000})
+    assert len(long["error"]) == sweep.ERROR_CHARS and long["error"].endswith("éé…")
+
+
+def test_log_tails_start_at_a_whole_character(tmp_path):
+    log = tmp_path / "stderr.log"
+    log.write_text("é" * 3000 + "x")  # 6001 bytes: the last 4000 start inside an é
+    tail = sweep._tail(log)
+    assert tail == "é" * 1999 + "x"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -412,16 +488,140 @@ def test_interrupted_sweep_records_nothing_half_done_and_reruns(fake_agent, tmp_
 def test_a_second_sweep_in_the_same_folder_is_refused(fake_agent, tmp_path):
     hold = tmp_path / "hold"
     hold.touch()
-    args = [str(fake_agent), "--out", str(tmp_path / "out"), "--runs", "1", "--sample", LR, "--",
+    out = tmp_path / "out"
+    args = [str(fake_agent), "--out", str(out), "--runs", "1", "--sample", LR, "--",
             "--hold", str(hold)]  # fmt: skip
     first = subprocess.Popen([sys.executable, *SWEEP, *args], stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)  # fmt: skip
     wait_for_starts(fake_agent, 1)
     second = run_sweep(*args)
-    assert second.returncode == 2 and "another sweep is running" in second.stderr
+    assert second.returncode == 2
+    assert f"{out} is held by another sweep (pid {first.pid})" in second.stderr
     hold.unlink()
     assert first.wait(30) == 0
     assert len(starts(fake_agent)) == 1
+    assert not (out / "runs" / "sweep.lock").exists()
+
+
+def _race(barrier: multiprocessing.synchronize.Barrier, argv: list[str], log: Path) -> None:
+    """One of two forked sweeps: wait for the other, then start; exit with the sweep's code."""
+    with open(log, "w") as f, contextlib.redirect_stderr(f), contextlib.redirect_stdout(f):
+        barrier.wait()
+        code = sweep.main(argv)
+    sys.exit(code)
+
+
+def test_two_sweeps_started_together_one_runs_the_other_is_refused(
+    args_agent, tmp_path, monkeypatch
+):
+    """Two sweeps started at the same instant into one new folder, 20 times: one runs, the
+    other exits 2 naming the one that holds the folder, and the folder is the winner's alone
+    (its sweep.json and results.csv, no temp file), with the same and with other seeds."""
+    ctx = multiprocessing.get_context("fork")
+    release = ctx.Event()
+
+    def stand_in(command: list[str], run_dir: str, stop_level=None) -> dict:
+        # the winner's run: no subprocess, and it lasts until the loser is out
+        release.wait(30)
+        evaluations = "global_step,mean_return\n0,0.5\n"
+        return {"returncode": 0, "interrupted": False, "wall_time_s": 0.01, "stdout_tail": "",
+                "stderr_tail": "", "evaluations_csv": evaluations}  # fmt: skip
+
+    monkeypatch.setattr(sweep, "execute_run", stand_in)
+    assert sweep.script_flags(args_agent)  # loaded here: both forks reach the lock at once
+    for attempt in range(20):
+        out = tmp_path / f"out-{attempt}"
+        seeds = (1, 1) if attempt % 2 else (1, 2)
+        barrier, logs = ctx.Barrier(2), [tmp_path / f"log-{attempt}-{i}" for i in (0, 1)]
+        release.clear()
+        argvs = [[str(args_agent), "--out", str(out), "--runs", "1", "--seed", str(seed),
+                  "--sample", LR] for seed in seeds]  # fmt: skip
+        sweeps = [
+            ctx.Process(target=_race, args=(barrier, argv, log))
+            for argv, log in zip(argvs, logs, strict=True)
+        ]
+        for process in sweeps:
+            process.start()
+        deadline = time.time() + 30
+        while all(process.is_alive() for process in sweeps):
+            assert time.time() < deadline, "neither sweep ended"
+            time.sleep(0.005)
+        [loser] = [process for process in sweeps if not process.is_alive()]
+        [winner] = [process for process in sweeps if process is not loser]
+        message = logs[sweeps.index(loser)].read_text()
+        assert loser.exitcode == 2, message
+        lock = out / "runs" / "sweep.lock"
+        assert message == (
+            f"error: {out} is held by another sweep (pid {winner.pid}) ({lock}); wait for it "
+            "to end, or use another --out\n"
+        )
+        release.set()
+        winner.join(30)
+        assert winner.exitcode == 0, logs[sweeps.index(winner)].read_text()
+        seed = seeds[sweeps.index(winner)]
+        assert json.loads((out / "sweep.json").read_text())["seed"] == seed
+        assert [row["seed"] for row in read_table(out)] == [str(seed)]
+        assert sorted(path.name for path in out.iterdir()) == ["results.csv", "runs", "sweep.json"]
+        assert not lock.exists()
+
+
+def test_the_lock_goes_when_the_sweep_ends_and_a_stale_one_does_not_block(fake_agent, tmp_path):
+    out = tmp_path / "out"
+    lock = out / "runs" / "sweep.lock"
+    args = [str(fake_agent), "--out", str(out), "--sample", LR]
+    assert sweep.main([*args, "--runs", "1"]) == 0
+    assert not lock.exists()
+    assert sweep.main([*args, "--runs", "1", "--seed", "9"]) == 2  # refused: it goes too
+    assert not lock.exists()
+    lock.write_text("12345\n")  # what a killed sweep leaves: the file, which nobody locks
+    assert sweep.main([*args, "--runs", "2"]) == 0
+    assert [row["status"] for row in read_table(out)] == ["ok", "ok"]
+    assert not lock.exists()
+
+
+@pytest.mark.parametrize("kind", ["Args dataclass", "argparse --help"])
+def test_a_flag_the_script_lacks_is_refused_before_anything_is_created(
+    fake_agent, args_agent, tmp_path, capsys, kind
+):
+    script = args_agent if kind == "Args dataclass" else fake_agent
+    out = tmp_path / "out"
+    base = [str(script), "--out", str(out), "--runs", "1"]
+    assert sweep.main([*base, "--sample", "lr=loguniform:1e-4:1e-2"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: --sample lr: {script.name} has no flag --lr; did you mean --learning-rate?\n"
+    )
+    assert sweep.main([*base, "--sample", LR, "--", "--num-worker", "2"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: after `--`: {script.name} has no flag --num-worker; did you mean --num-workers?\n"
+    )
+    assert sweep.main([*base, "--", "--zzz"]) == 2
+    assert "has no flag --zzz; its flags: " in capsys.readouterr().err
+    assert not out.exists() and not starts(fake_agent)
+    # nothing was created: the corrected command takes the same folder
+    assert sweep.main([*base, "--sample", LR, "--", "--num-workers", "1"]) == 0
+    assert [row["status"] for row in read_table(out)] == ["ok"]
+
+
+def test_a_tyro_error_is_recorded_as_its_message(args_agent, tmp_path, capsys):
+    out = tmp_path / "out"
+    code = sweep.main([str(args_agent), "--out", str(out), "--runs", "1", "--sample",
+                       "activation=choice:tanh"])  # fmt: skip
+    assert code == 1
+    [row] = read_table(out)
+    assert row["status"] == "failed"
+    assert row["error"] == (
+        "exit code 2: invalid choice 'tanh' for argument '--activation'. Expected one of "
+        "('relu', 'elu')."
+    )
+    assert f"| {row['error']} |" in capsys.readouterr().out  # the console line, whole
+
+
+def test_args_flags_are_read_as_tyro_spells_them(args_agent):
+    flags = sweep.script_flags(args_agent)
+    assert flags["learning-rate"] == flags["learning_rate"] == "learning-rate"
+    assert flags["no-anneal-lr"] == flags["no_anneal_lr"] == "no-anneal-lr"
+    assert "scale-obs" in flags and "no-scale-obs" not in flags  # tyro: bool | None has no --no-x
+    assert "no-learning-rate" not in flags
 
 
 def test_killed_sweep_takes_its_runs_with_it(fake_agent, tmp_path):

@@ -16,6 +16,13 @@ Everything after `--` is passed unchanged to every run (the fixed flags). Sample
     uniform:LOW:HIGH      U(LOW, HIGH)
     choice:A,B,C          one of the values, each equally likely: activation=choice:relu,elu
 
+Before anything is created, every sampled and fixed flag is checked against the script: one it
+lacks is refused (exit 2) with the nearest one it has ("--sample lr: a3c_ff.py has no flag
+--lr; did you mean --learning-rate?"). An agent script's flags are its Args dataclass's fields,
+read by importing it (tyro's spellings: --learning-rate or --learning_rate, --no-x for a bool);
+a script without a top-level Args (an argparse script) is asked for its --help, and one whose
+--help fails is not checked.
+
 Runs. Run i (run id run-0000, run-0001, ...) is `python SCRIPT FIXED SAMPLED --total-timesteps T
 --seed SEED+1000*i --run-dir OUT/runs/run-000i` (no --total-timesteps when none is given: the
 script's default). Its sampled values come from a generator seeded with (--seed, i) alone, so a
@@ -40,9 +47,15 @@ The results table OUT/results.csv has a row per finished run: run_id, status (ok
 score, score_all, evaluations, final_step, wall_time_s (a resumed run's counts its earlier
 parts), seed, one column per sampled flag, flags (the run's flags, ready to paste after the
 script) and error. A failed run (non-zero exit, no evaluations, or stopped by a signal the sweep
-did not send) is recorded with its error and does not stop the sweep; its logs stay in
+did not send) is recorded with its error (its exit, `error:` line and last meaningful stderr
+line: a tyro error box's message, not its borders) and does not stop the sweep; its logs stay in
 OUT/runs/<run_id>/stdout.log and stderr.log. The table is rewritten to a temporary file, flushed
 to disk and renamed over the old one after each run, so it is always whole.
+
+One sweep per folder: a sweep locks OUT/runs/sweep.lock (which holds its pid) before it reads
+or writes anything else in OUT, and removes it when it ends; another sweep started into the same
+OUT, even at the same instant, exits 2 naming it. A killed sweep leaves the file, unlocked: the
+next sweep takes it.
 
 Resuming. OUT/sweep.json holds the sweep's configuration (script name, samples, fixed flags,
 step budget, seed). Started again with the same OUT, the sweep refuses a different configuration
@@ -77,24 +90,32 @@ Exit codes: 0 when every run is in the table and at least one is ok, 1 when ever
 from __future__ import annotations
 
 import argparse
+import ast
 import concurrent.futures
 import contextlib
 import csv
 import ctypes
+import dataclasses
+import difflib
+import importlib.util
 import io
 import json
 import math
 import os
 import random
+import re
 import shlex
 import shutil
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+import typing
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+
+from a3c_tools import load_script
 
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
 SEED_STRIDE = 1000  # run i gets seed + SEED_STRIDE * i
@@ -116,6 +137,7 @@ TRAILING_COLUMNS = ["flags", "error"]
 RESERVED_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "evaluate"}
 STOP_GRACE_S = 30.0  # how long a run may take to checkpoint and exit after SIGINT
 TAIL_CHARS = 4000
+RAY_MISSING = '--backend ray needs Ray: pip install -e "./agents[ray]" (or pip install ray)'
 
 
 class UsageError(Exception):
@@ -199,6 +221,118 @@ def flag_value(flags: list[str], name: str) -> str | None:
 
 
 # ------------------------------------------------------------------------------------------------
+# The script's flags: a flag it lacks is refused before any run starts
+# ------------------------------------------------------------------------------------------------
+HELP_TIMEOUT_S = 60.0
+
+
+def script_flags(script: Path) -> dict[str, str] | None:
+    """The flags `script` accepts, each spelling mapped to the one its --help shows, or None
+    when they cannot be told. An agent script (one that defines `Args` at its top level and
+    runs only under a `__main__` guard, seen without running it) is loaded as a module and its
+    Args dataclass read as tyro turns it into flags: field learning_rate is --learning-rate or
+    --learning_rate, a bool field also has --no-x. Any other script (an argparse one, such as
+    the tests' fake agent) is run with --help, and every --flag its help text names counts."""
+    if _importable_agent(script):
+        with contextlib.suppress(Exception):  # it cannot be imported: ask its --help instead
+            module = load_script(script)
+            # load_script keeps one module per file name: make sure it is this file
+            same = Path(getattr(module, "__file__", "")).resolve() == script.resolve()
+            if same and dataclasses.is_dataclass(getattr(module, "Args", None)):
+                return _dataclass_flags(module.Args)
+    try:
+        result = subprocess.run(
+            [sys.executable, str(script), "--help"],
+            capture_output=True,
+            text=True,
+            errors="replace",
+            timeout=HELP_TIMEOUT_S,
+            stdin=subprocess.DEVNULL,
+            env={**os.environ, "COLUMNS": "200"},  # fewer wrapped lines
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    names = set(re.findall(r"(?<![\w-])--([A-Za-z0-9](?:[\w-]*\w)?)", result.stdout))
+    if result.returncode != 0 or not names - {"help"}:
+        return None
+    return {name: name for name in names}
+
+
+def _importable_agent(script: Path) -> bool:
+    """Whether the script defines (or imports) Args at its top level and runs only under
+    `if __name__ == "__main__":`, so that importing it runs nothing."""
+    try:
+        tree = ast.parse(script.read_bytes())
+    except (SyntaxError, ValueError):
+        return False
+    args = guarded = False
+    for node in tree.body:
+        if isinstance(node, ast.ClassDef):
+            args = args or node.name == "Args"
+        elif isinstance(node, ast.ImportFrom):
+            args = args or any((a.asname or a.name) == "Args" for a in node.names)
+        elif isinstance(node, ast.If):
+            names = {n.id for n in ast.walk(node.test) if isinstance(n, ast.Name)}
+            guarded = guarded or "__name__" in names
+    return args and guarded
+
+
+def _dataclass_flags(args_type: type) -> dict[str, str]:
+    try:
+        hints = typing.get_type_hints(args_type)
+    except Exception:  # an annotation that does not resolve: no --no-x flags then
+        hints = {}
+    flags = {}
+    for field in dataclasses.fields(args_type):
+        names = [field.name.replace("_", "-")]
+        if hints.get(field.name) is bool:  # not `bool | None`, which tyro gives no --no-x
+            names.append(f"no-{names[0]}")
+        for name in names:
+            flags[name] = name
+            flags[name.replace("-", "_")] = name
+    return flags
+
+
+def check_flags(
+    script: Path, samples: list[Sample], fixed: list[str], total_timesteps: int | None
+) -> None:
+    """UsageError for the first sampled, fixed (after `--`) or sweep-passed flag that the
+    script does not have, naming the nearest one it has. A script whose flags cannot be told
+    is not checked (a note says so)."""
+    flags = script_flags(script)
+    if flags is None:
+        print(f"note: {script.name}'s flags are unknown (its --help failed); not checked")
+        return
+    given = [(f"--sample {sample.name}", sample.name) for sample in samples]
+    given += [("after `--`", t[2:].split("=", 1)[0]) for t in fixed if t.startswith("--")]
+    for where, name in given:
+        if name and name not in flags:
+            raise UsageError(f"{where}: {script.name} has no flag --{name}; {_hint(name, flags)}")
+    passed = ["run-dir", "seed"]  # as plan_runs passes them
+    if total_timesteps is not None:
+        passed.append("total-timesteps")
+    if "num-workers" not in {name.replace("_", "-") for _, name in given}:
+        passed.append("num-workers")
+    for name in passed:
+        if name not in flags:
+            raise UsageError(
+                f"{script.name} has no flag --{name}, which the sweep passes to every run"
+            )
+
+
+def _hint(name: str, flags: dict[str, str]) -> str:
+    """'did you mean --x?' for the flag nearest name, else the list of the script's flags."""
+    choices = sorted(set(flags.values()) - RESERVED_FLAGS - {"help"})
+    wanted = name.replace("_", "-")
+    # an abbreviation of the words first (lr: learning-rate), then the nearest spelling
+    initials = [c for c in choices if "".join(w[0] for w in c.split("-") if w) == wanted]
+    near = initials or difflib.get_close_matches(wanted, choices, n=1, cutoff=0.6)
+    if near:
+        return f"did you mean --{near[0]}?"
+    return "its flags: " + ", ".join(f"--{c}" for c in choices)
+
+
+# ------------------------------------------------------------------------------------------------
 # Runs and their scores
 # ------------------------------------------------------------------------------------------------
 @dataclass
@@ -262,8 +396,12 @@ def score_evaluations(text: str) -> dict:
     }
 
 
+ERROR_CHARS = 500  # the longest error the table records
+
+
 def describe_failure(returncode: int, stderr: str) -> str:
-    """One line for the table: the exit, the script's `error:` line and the last stderr line."""
+    """One line for the table: the exit, the script's `error:` line and the error's last
+    meaningful line (a box's message, as tyro frames its errors, not the box)."""
     if returncode < 0:
         exit_text = f"killed by {signal.Signals(-returncode).name}"
     else:
@@ -273,9 +411,38 @@ def describe_failure(returncode: int, stderr: str) -> str:
     parts = [exit_text]
     if errors:
         parts.append(errors[-1])
-    if lines and lines[-1] not in parts:
-        parts.append(lines[-1])
-    return ": ".join(parts)[:500]
+    last = last_meaningful_line(lines)
+    if last and last not in parts:
+        parts.append(last)
+    text = ": ".join(parts)
+    # cut between characters (a str is cut by code point), and say that it was cut
+    return text if len(text) <= ERROR_CHARS else text[: ERROR_CHARS - 1] + "…"
+
+
+def _is_border(line: str) -> bool:
+    """Whether a line is box drawing only (U+2500..U+257F: ─ │ ╭ ╮ ╰ ╯ ...)."""
+    return all(ch.isspace() or "\u2500" <= ch <= "\u257f" for ch in line)
+
+
+def last_meaningful_line(lines: list[str]) -> str:
+    """The last line that says something: for output that ends with a box (tyro's errors:
+    a titled top border, the message, ─── separators, 'For full helptext...'), the box's
+    message, its first section's wrapped lines joined; otherwise the last line that is not
+    blank or box drawing. '' when there is none."""
+    lines = [line.strip() for line in lines if line.strip()]
+    tops = [i for i, line in enumerate(lines) if line.startswith("╭")]
+    if lines and lines[-1].startswith("╰") and tops:
+        section: list[str] = []
+        for line in lines[tops[-1] + 1 : -1]:
+            inner = line.strip("│").strip()
+            if not _is_border(inner):
+                section.append(inner)
+            elif section:  # a separator ends the message
+                break
+        if section:
+            return " ".join(section)
+    said = [line.strip("│").strip() for line in lines if not _is_border(line)]
+    return said[-1] if said else ""
 
 
 def execute_run(
@@ -336,9 +503,18 @@ def execute_run(
 
 
 def _tail(path: Path) -> str:
+    """The file's last TAIL_CHARS bytes, from a character's start: the bytes of a UTF-8
+    character the seek cut into are dropped, not decoded as a replacement character."""
     with open(path, "rb") as f:
-        f.seek(max(0, path.stat().st_size - TAIL_CHARS))
-        return f.read().decode(errors="replace")
+        offset = max(0, path.stat().st_size - TAIL_CHARS)
+        f.seek(offset)
+        data = f.read()
+    if offset > 0:  # started mid-file: skip UTF-8 continuation bytes
+        start = 0
+        while start < min(len(data), 3) and data[start] & 0xC0 == 0x80:
+            start += 1
+        data = data[start:]
+    return data.decode(errors="replace")
 
 
 def _signal_group(process: subprocess.Popen, signum: int) -> None:
@@ -401,7 +577,8 @@ def result_row(run: Run, result: dict) -> dict | None:
 # The output folder: sweep.json and results.csv
 # ------------------------------------------------------------------------------------------------
 def check_config(out: Path, config: dict) -> None:
-    """Write out/sweep.json, or check that the one there holds the same configuration."""
+    """Write out/sweep.json, or check that the one there holds the same configuration; only
+    with the folder's lock held, so that two sweeps never both find it missing."""
     path = out / CONFIG_NAME
     if path.exists():
         stored = json.loads(path.read_text())
@@ -417,22 +594,60 @@ def check_config(out: Path, config: dict) -> None:
     _write_atomically(path, json.dumps(config, indent=2) + "\n")
 
 
-def lock_folder(out: Path):
-    """Hold an exclusive lock on out/runs/sweep.lock for as long as the returned file stays
-    open, so that two sweeps cannot write the same folder (no-op where fcntl is missing). It
-    lives in runs/, which the repository's .gitignore leaves out, with the run folders."""
+LOCK_NAME = "sweep.lock"
+
+
+@contextlib.contextmanager
+def lock_folder(out: Path) -> Iterator[None]:
+    """Hold an exclusive lock on out/runs/sweep.lock while the block runs, so that two sweeps
+    cannot write the same folder (no-op where fcntl is missing); UsageError naming the sweep
+    that holds it. The lock file holds its holder's pid and is removed when the block ends; a
+    killed sweep leaves it behind, unlocked, and the next sweep takes it. It lives in runs/,
+    which the repository's .gitignore leaves out, with the run folders."""
     try:
         import fcntl
     except ImportError:
-        return None
+        yield
+        return
     (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
-    lock = open(out / RUNS_DIR / "sweep.lock", "w")  # noqa: SIM115 (closed when the process exits)
+    path = out / RUNS_DIR / LOCK_NAME
+    while True:
+        # not truncated on open: the file holds the pid of the sweep that may hold it
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _lock_holder(fd)
+            os.close(fd)
+            by = f"another sweep (pid {holder})" if holder else "another sweep"
+            raise UsageError(
+                f"{out} is held by {by} ({path}); wait for it to end, or use another --out"
+            ) from None
+        # a sweep that ended between our open and our flock removed the file we locked: the
+        # lock is the file now at the path, so take that one
+        with contextlib.suppress(FileNotFoundError):
+            if os.stat(path).st_ino == os.fstat(fd).st_ino:
+                break
+        os.close(fd)
     try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        lock.close()
-        raise UsageError(f"another sweep is running in {out}") from None
-    return lock
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield
+    finally:
+        with contextlib.suppress(FileNotFoundError):  # while still locked: a sweep that opened
+            os.unlink(path)  # it meanwhile finds it gone (above) and takes a fresh one
+        os.close(fd)
+
+
+def _lock_holder(fd: int) -> str:
+    """The pid in a lock file another sweep holds; its holder writes it just after locking, so
+    give it a moment."""
+    for _ in range(20):
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+        if holder:
+            return holder
+        time.sleep(0.01)
+    return ""
 
 
 class ResultsTable:
@@ -462,7 +677,7 @@ class ResultsTable:
 
 
 def _write_atomically(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # never another process's temp file
     with open(tmp, "w") as f:
         f.write(text)
         f.flush()
@@ -555,9 +770,7 @@ def run_ray(
     try:
         import ray
     except ImportError:
-        raise UsageError(
-            '--backend ray needs Ray: pip install -e "./agents[ray]" (or pip install ray)'
-        ) from None
+        raise UsageError(RAY_MISSING) from None
     if __name__ != "__main__":  # imported (tests): ship this module's code to the workers
         ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     if address:
@@ -714,6 +927,11 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
     names = [s.name for s in samples]
     if len(set(names)) != len(names):
         raise UsageError(f"a flag is sampled twice: {names}")
+    # every check of the arguments comes before the folder is touched: a refused start leaves
+    # nothing behind, and the same --out takes the corrected command
+    check_flags(Path(args.script), samples, fixed, args.total_timesteps)
+    if args.backend == "ray" and importlib.util.find_spec("ray") is None:
+        raise UsageError(RAY_MISSING)
     config = {
         "script": Path(args.script).name,
         "samples": [s.spec() for s in samples],
@@ -728,8 +946,13 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
         for run in runs:
             print(shlex.join(["python", *run.command(args.script, out / RUNS_DIR / run.run_id)]))
         return 0
-    check_config(out, config)
-    lock = lock_folder(out)  # noqa: F841 (held until the sweep exits)
+    with lock_folder(out):  # first: nothing in the folder is read or written without it
+        check_config(out, config)
+        return run_sweep(args, out, runs, names)
+
+
+def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[str]) -> int:
+    """Run the runs that are not in out's table yet and record them; the folder is locked."""
     table = ResultsTable(out / TABLE_NAME, names)
     todo = [run for run in runs if not table.finished(run.run_id)]
     cpus = args.cpus or cpu_count()
