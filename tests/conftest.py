@@ -6,9 +6,12 @@ The scripts import the a3c_runtime package, installed with the agents distributi
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import importlib.util
+import io
 import multiprocessing
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -98,3 +101,19 @@ def main_exit(
     except SystemExit as e:  # tyro's own errors, --help
         code = e.code
     return code, "" if keep_out else capsys.readouterr().err
+
+
+def run_main(main, argv: list[str], cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """A tool's main(argv) in process, from cwd, as `python -m <tool> *argv` would run it: its
+    exit code (argparse's SystemExit included), stdout and stderr."""
+    out, err, before = io.StringIO(), io.StringIO(), os.getcwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main(list(argv))
+            except SystemExit as e:
+                code = e.code
+    finally:
+        os.chdir(before)
+    return subprocess.CompletedProcess(argv, code or 0, out.getvalue(), err.getvalue())

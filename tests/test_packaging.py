@@ -119,9 +119,8 @@ def test_wheels_carry_the_license_and_index_metadata(tmp_path: Path) -> None:
     source = tmp_path / "src"
     ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
     shutil.copytree(ROOT / "catch_env", source / "catch_env", ignore=ignore)
-    shutil.copytree(
-        ROOT / "agents" / "a3c_runtime", source / "agents" / "a3c_runtime", ignore=ignore
-    )
+    for package in ("a3c_runtime", "a3c_tools"):
+        shutil.copytree(ROOT / "agents" / package, source / "agents" / package, ignore=ignore)
     for folder, _ in PROJECTS:
         target = source / folder.relative_to(ROOT)
         for name in ("pyproject.toml", "LICENSE", pyproject(folder)["project"]["readme"]):
@@ -145,6 +144,8 @@ def test_wheels_carry_the_license_and_index_metadata(tmp_path: Path) -> None:
             license_text = archive.read(f"{dist_info}/licenses/LICENSE")
             metadata = archive.read(f"{dist_info}/METADATA").decode("utf-8")
         assert license_text == (ROOT / "LICENSE").read_bytes()
+        if name == "agents":  # the tools' data files travel with them
+            assert "a3c_tools/thesis_figures.toml" in archive.namelist()
         headers, _, body = metadata.partition("\n\n")
         assert "License-Expression: MIT" in headers.splitlines()
         assert "License-File: LICENSE" in headers.splitlines()

@@ -1,15 +1,17 @@
 """a3c_tools.plot_evaluations draws a PNG from evaluations.csv and reports reaching a threshold."""
 
 import subprocess
-import sys
 from pathlib import Path
 
-SCRIPT = ["-m", "a3c_tools.plot_evaluations"]
+from a3c_tools import plot_evaluations
+from conftest import run_main
+
 HEADER = "global_step,wall_time_s,mean_return,std_return,episodes\n"
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *SCRIPT, *args], capture_output=True, text=True)
+    """`python -m a3c_tools.plot_evaluations *args`, in process."""
+    return run_main(plot_evaluations.main, list(args), Path.cwd())
 
 
 def test_plot_writes_png_and_reports_threshold(tmp_path):

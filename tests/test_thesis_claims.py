@@ -3,13 +3,11 @@ what the script makes of the data, the verdict rule on hand-made intervals, the 
 against known samples, and the handling of lines not run yet."""
 
 import csv
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 from a3c_tools import thesis_claims as claims  # noqa: E402
-from conftest import ROOT
+from conftest import ROOT, run_main
 
 
 def test_the_claims_page_holds_what_the_committed_results_give():
@@ -23,10 +21,7 @@ def test_the_claims_page_holds_what_the_committed_results_give():
 def test_the_check_option_fails_on_a_stale_page(tmp_path):
     stale = tmp_path / "claims.md"
     stale.write_text("# an old page\n")
-    done = subprocess.run(
-        [sys.executable, "-m", "a3c_tools.thesis_claims", "--check", str(stale)],
-        capture_output=True, text=True,
-    )  # fmt: skip
+    done = run_main(claims.main, ["--check", str(stale)])
     assert done.returncode == 1 and "is stale" in done.stdout
 
 

@@ -13,12 +13,11 @@ import dataclasses
 import re
 import shlex
 import subprocess
-import sys
 from pathlib import Path
 
 import a3c_runtime as runtime
 import pytest
-from conftest import AGENTS, ROOT, load_script
+from conftest import AGENTS, ROOT, load_script, run_main
 
 TOOL = ["-m", "a3c_tools.thesis_figures"]
 REQUIRED = ["fig6.3", "fig6.5", "fig6.6", "fig6.7", "fig6.8", "fig7.1", "fig7.2", "fig7.3",
@@ -43,10 +42,9 @@ def flag_names(argv: list[str]) -> list[str]:
     return [word[2:].split("=")[0] for word in argv if word.startswith("--")]
 
 
-def run_tool(*args: str, cwd: Path = ROOT, tool: list[str] = TOOL) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, *tool, *args], capture_output=True, text=True, cwd=cwd, timeout=60
-    )
+def run_tool(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """`python -m a3c_tools.thesis_figures *args`, in process."""
+    return run_main(figures.main, list(args), cwd)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -223,6 +223,7 @@ def step_both(native, python, actions):
     return largest, int(ended.sum()), int(info["final_info"]["_episode"].sum()) if info else 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("env_id", "steps"), [("BreakoutNoFrameskip-v4", 1200), ("PongNoFrameskip-v4", 3600)]
 )

@@ -160,24 +160,27 @@ def render(claims: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m a3c_tools.thesis_claims", description=__doc__.split("\n")[0]
+    )
     parser.add_argument("-o", "--out", type=Path, help="write the page here (default: stdout)")
     parser.add_argument("--check", type=Path, help="exit 1 if this page differs from the data")
-    opts = parser.parse_args()
+    opts = parser.parse_args(argv)
     with open(CLAIMS, "rb") as f:
         page = render(tomllib.load(f))
     if opts.check is not None:
         if not opts.check.is_file() or opts.check.read_text() != page:
             print(f"{opts.check} is stale: python -m a3c_tools.thesis_claims -o {opts.check}")
-            sys.exit(1)
+            return 1
         print(f"{opts.check} holds what the committed results give")
     elif opts.out is not None:
         opts.out.write_text(page)
         print(f"wrote {opts.out}")
     else:
         sys.stdout.write(page)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
