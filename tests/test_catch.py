@@ -201,10 +201,13 @@ def test_invalid_action_names_the_valid_actions_and_keeps_the_state(action):
 
 
 def test_numpy_integer_actions_are_accepted():
-    env = CatchEnv()
+    """A numpy integer or 0-d array is the action it holds: the same game as Python ints."""
+    env, reference = CatchEnv(), CatchEnv()
     env.reset(seed=0)
-    env.step(np.int64(1))
-    env.step(np.array(2))
+    reference.reset(seed=0)
+    for action, same in ((np.int64(0), 0), (np.array(2), 2), (np.int8(1), 1)):
+        np.testing.assert_array_equal(env.step(action)[0], reference.step(same)[0])
+    assert env.paddle == reference.paddle
 
 
 def test_step_before_reset_raises():

@@ -112,7 +112,11 @@ def test_an_old_checkpoint_of_the_same_script_still_loads(ff_checkpoints):
     module = load_script("a3c_ff")
     checkpoint = runtime.load_checkpoint(str(old), module.AGENT)
     args = tiny_args(module)
-    runtime.restore(shared_for(module, args), checkpoint, args, str(old), module.AGENT)
+    shared = shared_for(module, args)
+    runtime.restore(shared, checkpoint, args, str(old), module.AGENT)
+    assert shared.global_step() == checkpoint["global_step"]
+    for key, value in shared.model.state_dict().items():
+        assert torch.equal(value, checkpoint["model"][key]), key
 
 
 def test_evaluating_an_old_checkpoint_of_another_network_is_a_usage_error(ff_checkpoints):
