@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import importlib.util
 import multiprocessing
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -57,6 +58,19 @@ def run_script(name: str, *flags: str, timeout: float = 120) -> subprocess.Compl
         timeout=timeout,
         cwd=ROOT,
     )
+
+
+def run_into_a_closed_pipe(argv: list[str], timeout: float = 60) -> subprocess.CompletedProcess:
+    """Run a command whose stdout is a pipe with no reader left (as after `| head -1` has
+    exited): every write to it fails with EPIPE, at once and every time."""
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        return subprocess.run(
+            argv, stdout=write, stderr=subprocess.PIPE, text=True, timeout=timeout, cwd=ROOT
+        )
+    finally:
+        os.close(write)
 
 
 def read_evaluations(run_dir: Path) -> list[dict]:
