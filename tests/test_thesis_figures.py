@@ -18,7 +18,7 @@ from pathlib import Path
 
 import a3c_runtime as runtime
 import pytest
-from conftest import AGENTS, ROOT, load_script
+from conftest import AGENTS, ROOT, load_script, run_into_a_closed_pipe
 
 TOOL = ["-m", "a3c_tools.thesis_figures"]
 REQUIRED = ["fig6.3", "fig6.5", "fig6.6", "fig6.7", "fig6.8", "fig7.1", "fig7.2", "fig7.3",
@@ -317,6 +317,15 @@ def test_dry_run_prints_the_sweeps_and_creates_nothing(tmp_path):
     assert plot[1:3] == ["-m", "a3c_tools.plot_sweep"]
     assert plot[plot.index("--out") + 1] == str(out / "fig7.6" / "fig7.6.png")
     assert "A3C FF=0.73" in plot and "GLPQ searing=0.81" in plot
+
+
+def test_a_dry_run_into_a_closed_pipe_ends_quietly_creating_nothing(tmp_path):
+    """`... --dry-run | head`: the pipe is the process boundary."""
+    out = tmp_path / "out"
+    argv = ["all", "--runs", "1", "--steps", "1000", "--out", str(out), "--dry-run"]
+    result = run_into_a_closed_pipe([sys.executable, *TOOL, *argv])
+    assert result.stderr == "" and result.returncode == 1, result.stderr
+    assert not out.exists()
 
 
 def test_dry_run_prints_a_shared_sweep_once():

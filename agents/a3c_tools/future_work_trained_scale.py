@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from a3c_tools import AGENTS, ROOT, load_script
+from a3c_tools import AGENTS, ROOT, load_script, run_main
 from a3c_tools.future_work_initial_policy import features
 
 FOLDER = ROOT / "results" / "future_work_catch"
@@ -111,4 +111,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main(main)

@@ -96,6 +96,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from a3c_tools import run_main
+
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
 SEED_STRIDE = 1000  # run i gets seed + SEED_STRIDE * i
 TABLE_NAME = "results.csv"
@@ -770,4 +772,4 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

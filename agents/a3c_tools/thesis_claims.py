@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import bootstrap
 
+from a3c_tools import run_main
+
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
@@ -180,4 +182,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
