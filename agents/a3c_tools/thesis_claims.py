@@ -157,8 +157,10 @@ def render(claims: dict) -> str:
             out.append("| " + " | ".join(" ".join(cell.split()) for cell in cells) + " |")
         out.append("")
     out.append(claims["outro"].strip())
-    out += [""] + [f"- {', '.join(dict.fromkeys(wheres))}: `{command}`"
-                   for command, wheres in missing.items()]  # fmt: skip
+    if missing:  # the sentence that introduces the list only with a list to introduce
+        out += ["", claims.get("missing", "The rows *not run yet*, and their commands:").strip()]
+        out += [""] + [f"- {', '.join(dict.fromkeys(wheres))}: `{command}`"
+                       for command, wheres in missing.items()]  # fmt: skip
     return "\n".join(out) + "\n"
 
 
