@@ -51,7 +51,7 @@ def train(
     resumed run's checkpoint and its folder, locked before the checkpoint was read."""
     torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
     if args.resume and folder is None:
-        check_checkpoint_path(args.resume, "--resume")  # a folder is no checkpoint's folder
+        check_checkpoint_path(args.resume, "--resume")  # before the folder is touched
         folder = RunFolder(run_folder_path(args, resuming=True))
     if args.resume and checkpoint is None:
         checkpoint = load_checkpoint(args.resume, agent, "--resume")
