@@ -9,6 +9,9 @@ the paddle's band of rows and draws the ball's new cell instead of redrawing the
 
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, SupportsFloat
 
@@ -31,6 +34,60 @@ OBS_TYPES = ("pixels", "grid")
 ON, OFF = 255, 0
 
 _VALID_ACTIONS = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_MEANINGS))
+# What CatchVectorEnv holds per env, in frames (measured with tracemalloc): the batched
+# observation space's bounds and their masks, the canvas and the copy a step returns.
+VECTOR_FRAMES_PER_ENV = 8
+
+
+def available_memory() -> int | None:
+    """The bytes this process can still allocate without swapping (Linux: MemAvailable, capped
+    by a cgroup v2 memory limit), or None where it cannot be told."""
+    available = None
+    with contextlib.suppress(OSError, ValueError, IndexError), open("/proc/meminfo") as f:
+        for line in f:
+            if line.startswith("MemAvailable:"):
+                available = int(line.split()[1]) * 1024
+    if available is None and hasattr(os, "sysconf"):
+        with contextlib.suppress(OSError, ValueError):
+            available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    with contextlib.suppress(OSError, ValueError):  # a container's limit, if lower
+        with open("/sys/fs/cgroup/memory.max") as f:
+            limit = f.read().strip()
+        with open("/sys/fs/cgroup/memory.current") as f:
+            used = int(f.read())
+        if limit != "max":
+            room = max(int(limit) - used, 0)
+            available = room if available is None else min(available, room)
+    return available
+
+
+def format_bytes(count: float) -> str:
+    """1.5 GiB, 820 MiB: a memory size for a message."""
+    for unit, size in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20)):
+        if count >= size:
+            return f"{count / size:.3g} {unit}"
+    return f"{count / 2**10:.3g} KiB"
+
+
+def vector_seeds(seed: Any, num_envs: int) -> list[int | None]:
+    """Gymnasium's vector-env seeding (SyncVectorEnv): None gives every env a random seed; an
+    integer s (a NumPy integer too) gives env i the seed s + i; a sequence gives one seed per
+    env. Anything else gets Gymnasium's own error, as a single env's reset gives it."""
+    if seed is None:
+        return [None] * num_envs
+    if isinstance(seed, (int, np.integer)):
+        seeds = [int(seed) + i for i in range(num_envs)]
+    elif isinstance(seed, (Sequence, np.ndarray)) and not isinstance(seed, (str, bytes)):
+        seeds = [int(s) if isinstance(s, np.integer) else s for s in seed]
+        if len(seeds) != num_envs:
+            raise ValueError(
+                "If seeds are passed as a list the length must match "
+                f"num_envs={num_envs} but got length={len(seeds)}."
+            )
+    else:
+        seeding.np_random(seed)  # raises Gymnasium's error for this seed
+        raise AssertionError("unreachable: np_random refuses any other seed")
+    return seeds  # (np_random gives Gymnasium's error for a negative or non-integer one)
 
 
 def _check_int(name: str, value: Any, low: int, high: int, extra: str = "") -> int:
@@ -351,6 +408,17 @@ class CatchVectorEnv(VectorEnv):
     ) -> None:
         self.num_envs = _check_int("num_envs", num_envs, 1, 2**24)
         self.rules = CatchRules(grid_size, paddle_width, paddle_speed, obs_type)
+        self._start_buffer = _check_int("start_buffer", start_buffer, 1, 2**16)
+        # before anything is allocated: an estimate beyond memory is one clear error, not an
+        # allocation failure (or the swapping) half-way through
+        per_env = VECTOR_FRAMES_PER_ENV * self.rules.obs_side**2 + self._start_buffer * 3 * 8
+        needed, available = self.num_envs * per_env, available_memory()
+        if available is not None and needed > available:
+            raise MemoryError(
+                f"num_envs={self.num_envs} needs about {format_bytes(needed)} "
+                f"({format_bytes(per_env)} per env), more than the "
+                f"{format_bytes(available)} of memory available"
+            )
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -384,7 +452,6 @@ class CatchVectorEnv(VectorEnv):
         self._needs_reset = np.ones(n, dtype=bool)
         # One generator per env, as in N single envs. Start states are drawn `start_buffer`
         # games at a time per env, in one call, to keep the per-env Python loop rare.
-        self._start_buffer = _check_int("start_buffer", start_buffer, 1, 2**16)
         self._rngs = [seeding.np_random()[0] for _ in range(n)]
         self._starts = np.zeros((n, self._start_buffer, 3))
         self._starts_used = np.full(n, self._start_buffer)
@@ -396,10 +463,7 @@ class CatchVectorEnv(VectorEnv):
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         if seed is not None:
-            seeds = [seed + i for i in range(self.num_envs)] if isinstance(seed, int) else seed
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"Expected {self.num_envs} seeds, got {len(seeds)}")
-            self._rngs = [seeding.np_random(s)[0] for s in seeds]
+            self._rngs = [seeding.np_random(s)[0] for s in vector_seeds(seed, self.num_envs)]
             self._starts_used[:] = self._start_buffer
         mask = np.ones(self.num_envs, dtype=bool)
         if options is not None and "reset_mask" in options:

@@ -6,7 +6,8 @@
 
 Esc, closing the window, Ctrl-C or SIGTERM quits and prints a summary saying which (e.g.
 "quit: stopped by SIGTERM"); the exit status is 0 however the session ended, 2 for bad
-flags. The game advances one step per
+flags or no display (`SDL_VIDEODRIVER=dummy` plays headless, for tests and CI). The game
+advances one step per
 frame at `--fps`; the default is the game's real speed (10 steps/s for Catch, 60 frames/s
 for Atari). Atari games are played raw (`gym.make(id, render_mode="rgb_array")`), without
 the learner's preprocessing.
@@ -20,6 +21,7 @@ import importlib.util
 import itertools
 import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -28,7 +30,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from catch_env.rendering import Window
+from catch_env.rendering import NoDisplayError, Window, check_display
 from catch_env.wrappers import ATARI_ENTRY_POINT, is_atari
 
 BUTTONS = ("UP", "DOWN", "LEFT", "RIGHT", "FIRE")
@@ -263,7 +265,8 @@ def play(
             env.reset(seed=seed)
             frame = env.render()
             zoom = zoom or max(1, round(TARGET_WINDOW_HEIGHT / frame.shape[0]))
-            window = Window(f"{env_id} (Esc quits)", frame.shape[:2], zoom=zoom)
+            # the status line in a bar below the game: over the frame it hid Breakout's score
+            window = Window(f"{env_id} (Esc quits)", frame.shape[:2], zoom=zoom, status_bar=True)
             pygame = window.pygame
             key_buttons = _keyboard_buttons(pygame)
             held_keys: set[int] = set()
@@ -356,7 +359,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     """The `catch-play` command: parse the flags, play, print a summary line.
 
     Exits 0 however the session ended (Esc, window closed, Ctrl-C, SIGTERM: the summary says
-    which), as Ctrl-C always did: the summary is the result, not an error. Bad flags exit 2.
+    which), as Ctrl-C always did: the summary is the result, not an error. Bad flags exit 2,
+    and so does no display (one line; SDL_VIDEODRIVER=dummy plays headless, as the tests do).
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -368,6 +372,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     try:
         check_env_id(args.env)
+        check_display()  # before the controls line: a game no one can see is not played
         # Flushed: a parent reading the pipe (tests, launchers) sees the game start.
         print(
             f"{args.env}: arrow keys or WASD move, space is FIRE, Esc or closing the window quits.",
@@ -378,6 +383,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         )
     except (UnplayableEnvError, ImportError) as error:
         parser.error(str(error))
+    except NoDisplayError as error:  # not a flag's fault: one line, no usage
+        print(f"{parser.prog}: error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
     print(stats.summary())
 
 

@@ -62,6 +62,19 @@ def run_script(name: str, *flags: str, timeout: float = 120) -> subprocess.Compl
     )
 
 
+def run_into_a_closed_pipe(argv: list[str], timeout: float = 60) -> subprocess.CompletedProcess:
+    """Run a command whose stdout is a pipe with no reader left (as after `| head -1` has
+    exited): every write to it fails with EPIPE, at once and every time."""
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        return subprocess.run(
+            argv, stdout=write, stderr=subprocess.PIPE, text=True, timeout=timeout, cwd=ROOT
+        )
+    finally:
+        os.close(write)
+
+
 def read_evaluations(run_dir: Path) -> list[dict]:
     with open(run_dir / "evaluations.csv") as f:
         return list(csv.DictReader(f))

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,6 +34,7 @@ def run(script: str, *args: str, monkeypatch, capsys) -> Result:
     module = benchmark(name)
     monkeypatch.chdir(ROOT)
     monkeypatch.setattr(sys, "argv", [script, *args])
+    threads = torch.get_num_threads()
     try:
         code = module.main() or 0
     except SystemExit as e:  # argparse's errors, or SystemExit("message")
@@ -40,6 +42,9 @@ def run(script: str, *args: str, monkeypatch, capsys) -> Result:
         if isinstance(code, str):
             print(code, file=sys.stderr)
             code = 1
+    finally:  # a profile sets up this process as a worker: one thread, denormals flushed
+        torch.set_num_threads(threads)
+        torch.set_flush_denormal(False)
     out, err = capsys.readouterr()
     return Result(code, out, err)
 

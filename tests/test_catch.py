@@ -352,5 +352,45 @@ def test_vector_env_pickles_mid_episode():
     np.testing.assert_array_equal(envs.step(actions)[0], clone.step(actions)[0])
 
 
+@pytest.mark.parametrize(
+    "seed", [5, np.int64(5), np.int32(5), [5, 6, 7, 8], (5, 6, 7, 8), np.arange(5, 9)]
+)
+def test_vector_env_seeds_as_gymnasiums_vector_envs_do(seed):
+    """An integer seed s (a NumPy one too) seeds env i with s + i; a sequence, one per env."""
+    expected, _ = gym.make_vec("Catch-v0", num_envs=4, vectorization_mode="sync").reset(seed=5)
+    obs, _ = gym.make_vec("Catch-v0", num_envs=4).reset(seed=seed)
+    np.testing.assert_array_equal(obs, expected)
+
+
+@pytest.mark.parametrize(
+    ("seed", "error", "message"),
+    [
+        (5.0, gym.error.Error, "Seed must be a python integer, actual type: <class 'float'>"),
+        ("5", gym.error.Error, "Seed must be a python integer, actual type: <class 'str'>"),
+        (-1, gym.error.Error, "Seed must be greater or equal to zero, actual value: -1"),
+        ([1, 2, 3], ValueError, "the length must match num_envs=4 but got length=3"),
+        ([1, 2, 3, 4.0], gym.error.Error, "Seed must be a python integer"),
+    ],
+)
+def test_vector_env_refuses_a_bad_seed_as_gymnasium_does(seed, error, message):
+    envs = gym.make_vec("Catch-v0", num_envs=4)
+    with pytest.raises(error) as raised:
+        envs.reset(seed=seed)
+    assert message in str(raised.value)
+    if isinstance(seed, float):  # the single env's own message, word for word
+        with pytest.raises(error) as single:
+            gym.make("Catch-v0").reset(seed=seed)
+        assert str(single.value) == str(raised.value)
+
+
+def test_vector_env_beyond_memory_is_one_clear_error():
+    """2**24 envs need some 900 GiB: refused before anything is allocated, in one line."""
+    with pytest.raises(MemoryError) as error:
+        gym.make_vec("Catch-v0", num_envs=2**24)
+    message = str(error.value)
+    assert message.startswith("num_envs=16777216 needs about ") and "of memory available" in message
+    assert "\n" not in message
+
+
 def test_package_exports():
     assert catch_env.ACTION_MEANINGS == ("NOOP", "LEFT", "RIGHT")

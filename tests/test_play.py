@@ -19,6 +19,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
 import pygame  # noqa: E402
 import pytest  # noqa: E402
 
@@ -277,6 +278,48 @@ def test_main_plays_and_prints_a_summary(
     main(["--fps", str(FAST), "--seed", "0", "--episodes", "2", "--zoom", "2"])
     out = capsys.readouterr().out
     assert "Catch-v0: 2 episode(s)" in out and "30 steps" in out
+
+
+@pytest.mark.parametrize(
+    ("environment", "reason"),
+    [
+        ({}, "DISPLAY and WAYLAND_DISPLAY are unset"),  # SDL would play in its offscreen driver
+        ({"SDL_VIDEODRIVER": "x11"}, "SDL cannot open one (x11 not available)"),
+        ({"DISPLAY": ":4242"}, ""),  # no server there: SDL fails, or falls back to offscreen
+    ],
+)
+def test_catch_play_without_a_display_exits_2_in_one_line(
+    environment: dict[str, str],
+    reason: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    for name in ("SDL_VIDEODRIVER", "DISPLAY", "WAYLAND_DISPLAY"):  # the tests' dummy driver too
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # no Wayland socket to find
+    for name, value in environment.items():
+        monkeypatch.setenv(name, value)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--episodes", "1"])
+    assert exit_info.value.code == 2
+    out, err = capsys.readouterr()
+    assert out == ""  # not even the controls line: nothing is played
+    assert err.startswith("catch-play: error: no display: ") and err.count("\n") == 1, err
+    assert reason in err and "set SDL_VIDEODRIVER=dummy" in err
+
+
+def test_the_status_line_is_drawn_below_the_game_not_over_it() -> None:
+    """Over the frame, the status line hid Breakout's score."""
+    window = Window("status", (10, 20), zoom=3, status_bar=True)
+    try:
+        window.show(np.full((10, 20, 3), 40, dtype=np.uint8), text="episode 1   score 0")
+        pixels = pygame.surfarray.array3d(window.surface).swapaxes(0, 1)  # (height, width, 3)
+    finally:
+        window.close()
+    assert pixels.shape[:2] == (30 + window.bar_height, 60) and window.bar_height > 0
+    assert (pixels[:30] == 40).all()  # the game's frame, untouched
+    assert (pixels[30:] != 0).any()  # the text, in the bar
 
 
 @pytest.mark.parametrize(

@@ -63,3 +63,28 @@ def test_wall_time_panel_draws_a_second_panel(tmp_path):
     assert result.returncode == 0, result.stderr
     (width_one, height_one), (width_two, height_two) = png_size(one), png_size(two)
     assert height_two == height_one and width_two > 1.4 * width_one
+
+
+def x_labels() -> list[str]:
+    """The x axis labels of the figure plot_evaluations drew, its axes' and their children's
+    (a secondary axis is a child)."""
+    import matplotlib.pyplot as plt
+
+    (number,) = plt.get_fignums()
+    axes = plt.figure(number).axes
+    return [a.get_xlabel() for a in axes] + [c.get_xlabel() for a in axes for c in a.child_axes]
+
+
+def test_a_wall_time_axis_only_with_wall_time(tmp_path, capsys):
+    import matplotlib.pyplot as plt
+    from a3c_tools import plot_evaluations
+
+    csv_path = tmp_path / "evaluations.csv"
+    csv_path.write_text(HEADER + "0,1.0,0.2,0.4,50\n50000,30.0,0.86,0.35,50\n")
+    cases = {(): ["global steps"], ("--wall-time",): ["global steps", "wall time (minutes)"]}
+    for flags, expected in cases.items():
+        plt.close("all")
+        assert plot_evaluations.main([str(csv_path), "-o", str(tmp_path / "c.png"), *flags]) == 0
+        assert x_labels() == expected
+    plt.close("all")
+    assert "wrote" in capsys.readouterr().out

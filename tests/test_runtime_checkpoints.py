@@ -1,6 +1,8 @@
 """a3c_runtime.checkpoints: a round trip of network, optimizer statistics and step, and every
-bad checkpoint as a one-line UsageError; old checkpoints still load."""
+bad checkpoint as a one-line UsageError (changed bytes included, before torch reads them); old
+checkpoints still load."""
 
+import zipfile
 from pathlib import Path
 
 import a3c_runtime as runtime
@@ -178,3 +180,112 @@ def test_a_failed_checkpoint_write_keeps_the_last_one_and_leaves_no_partial_file
     assert errors.get() == f"could not write {path}: File too large"
     assert runtime.load_checkpoint(str(path), module.AGENT)["global_step"] == 42
     assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]
+
+
+def changed_copies(path: Path, folder: Path) -> dict[str, Path]:
+    """Copies of the checkpoint at path, each changed as a disk or a person might change it."""
+    data = path.read_bytes()
+    middle = len(data) // 2
+    flipped = data[:middle] + bytes(b ^ 0xFF for b in data[middle : middle + 64])
+    flipped += data[middle + 64 :]
+    # a byte no member's CRC covers: the time in a member's header (offset 10), which the CRC
+    # check alone lets through (the seal, the SHA-256 of the bytes, does not)
+    header = bytearray(data)
+    header[zipfile.ZipFile(path).infolist()[0].header_offset + 10] ^= 0x01
+    foreign = folder / "foreign.zip"
+    with zipfile.ZipFile(foreign, "w") as archive:
+        archive.writestr("readme.txt", "not a checkpoint")
+    changed = {
+        "flipped": flipped,
+        "header": bytes(header),
+        "truncated": data[: len(data) // 3],
+        "foreign": foreign.read_bytes(),
+    }
+    copies = {}
+    for name, content in changed.items():
+        (folder / name).mkdir()
+        copies[name] = folder / name / "checkpoint.pt"
+        copies[name].write_bytes(content)
+    return copies
+
+
+CHANGES = ("flipped", "header", "truncated", "foreign")
+MESSAGES = {
+    "flipped": "is corrupt: archive/data/",  # ... N fails its CRC check
+    "header": "is corrupt: its bytes do not match the SHA-256 it was written with",
+    "truncated": "is corrupt: not a whole zip archive",
+    "foreign": "is corrupt or not a torch file",
+}
+
+
+@pytest.mark.parametrize("change", CHANGES)
+def test_a_changed_checkpoint_is_refused_before_torch_reads_it(change, ff_checkpoints, tmp_path):
+    new, _ = ff_checkpoints
+    path = changed_copies(new, tmp_path)[change]
+    with pytest.raises(runtime.UsageError, match=MESSAGES[change]) as error:
+        runtime.load_checkpoint(str(path), load_script("a3c_ff").AGENT)
+    assert "\n" not in str(error.value)
+    if change == "flipped":
+        assert str(error.value).endswith("fails its CRC check")
+    assert runtime.checkpoints.checkpoint_step(path) is None  # never offered for --resume
+
+
+@pytest.mark.parametrize("mode", ["--resume", "--evaluate"])
+def test_resume_and_evaluate_refuse_a_changed_checkpoint_and_leave_it(
+    mode, ff_checkpoints, tmp_path, monkeypatch, capsys
+):
+    new, _ = ff_checkpoints
+    module = load_script("a3c_ff")
+    for change, path in changed_copies(new, tmp_path).items():
+        before = path.read_bytes()
+        code, err = main_exit(module, [mode, str(path), "--num-workers", "1"], monkeypatch, capsys)
+        assert code == 2 and MESSAGES[change] in err and err.count("\n") == 1, (change, err)
+        assert path.read_bytes() == before  # not trained on, not overwritten
+        assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt"]
+
+
+def test_a_sealed_checkpoint_loads_and_an_unsealed_one_is_checked_by_crc(ff_checkpoints):
+    new, old = ff_checkpoints  # old: rewritten by torch.save, as checkpoints were before the seal
+    agent = load_script("a3c_ff").AGENT
+    assert zipfile.ZipFile(new).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
+    assert zipfile.ZipFile(old).comment == b""
+    for path in (new, old):
+        assert runtime.checkpoints.verify_checkpoint(path.read_bytes()) is None
+        assert runtime.load_checkpoint(str(path), agent)["format"] == "a3c-checkpoint-v1"
+        assert runtime.checkpoints.checkpoint_step(path) == 0
+
+
+def test_the_closing_hint_does_not_offer_a_changed_checkpoint(ff_checkpoints, tmp_path):
+    from a3c_runtime.a3c import resume_hint
+
+    new, _ = ff_checkpoints
+    agent = load_script("a3c_ff").AGENT
+    path = changed_copies(new, tmp_path)["flipped"]
+    hint = resume_hint(agent, path.parent)
+    assert "does not verify (corrupt); start the run again" in hint and "--resume" not in hint
+    (tmp_path / "good").mkdir()
+    (tmp_path / "good" / "checkpoint.pt").write_bytes(new.read_bytes())
+    assert "(step 0) survives; resume: " in resume_hint(agent, tmp_path / "good")
+
+
+@pytest.mark.parametrize("mode", ["--resume", "--evaluate"])
+def test_a_folder_for_a_checkpoint_names_the_checkpoint_in_it(
+    mode, ff_checkpoints, tmp_path, monkeypatch, capsys
+):
+    new, _ = ff_checkpoints
+    run = tmp_path / "runs" / "x"
+    run.mkdir(parents=True)
+    module = load_script("a3c_ff")
+    monkeypatch.chdir(tmp_path)
+    code, err = main_exit(module, [mode, "runs/x"], monkeypatch, capsys)
+    assert (
+        code == 2 and err == "error: checkpoint 'runs/x' is a folder, and holds no checkpoint.pt\n"
+    )
+    (run / "checkpoint.pt").write_bytes(new.read_bytes())
+    code, err = main_exit(module, [mode, "runs/x"], monkeypatch, capsys)
+    assert code == 2, err
+    expected = f"is a folder: pass its checkpoint, {mode} runs/x/checkpoint.pt\n"
+    assert err == "error: checkpoint 'runs/x' " + expected
+    # nothing created: no lock file in the folder or beside it
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["x"]
+    assert sorted(p.name for p in run.iterdir()) == ["checkpoint.pt"]

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import a3c_runtime as runtime
 import pytest
 import torch
-from conftest import FORK, SCRIPTS, load_script, shared_for, tiny_args
+from conftest import FORK, SCRIPTS, load_script, main_exit, shared_for, tiny_args
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -75,3 +75,16 @@ def test_greedy_evaluation_plays_argmax_pi():
     assert greedy.tolist() == [20.0] * 4
     sampled = runtime.play_episodes(FixedPolicy(), envs)
     assert 4 * 20 * 0.3 < sampled.sum() < 4 * 20 * 0.9
+
+
+def test_evaluate_in_a_window_without_a_display_exits_2_in_one_line(tmp_path, monkeypatch, capsys):
+    """Without a display SDL would play the episodes in no window at all."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="a3c_ff.py")
+    for name in ("SDL_VIDEODRIVER", "DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    argv = ["--evaluate", str(path), "--render", "human"]
+    code, err = main_exit(module, argv, monkeypatch, capsys)
+    assert code == 2 and err.startswith("error: no display: ") and err.count("\n") == 1, err

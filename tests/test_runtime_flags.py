@@ -7,7 +7,13 @@ import warnings
 import a3c_runtime as runtime
 import pytest
 import torch
-from conftest import ALL_SCRIPTS, load_script, main_exit
+from conftest import (
+    ALL_SCRIPTS,
+    SCRIPT_PATHS,
+    load_script,
+    main_exit,
+    run_into_a_closed_pipe,
+)
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -35,6 +41,13 @@ BAD_FLAGS = [
     (["--evaluate", "/nonexistent/checkpoint.pt"], "error: checkpoint '/nonexistent/"),
     (["--grad-clip-mode", "sideways"], "norm"),
     (["--rms-init", "-1"], "error: --rms-init must be >= 0 (got -1.0)"),
+    (["--resume", "."], "error: checkpoint '.' is a folder, and holds no checkpoint.pt"),
+    (["--exp-name", "my/run"], "error: --exp-name 'my/run' holds a path separator: it is one "),
+    # the rollout buffers alone: 10^7 x 89 frames of 84x84 bytes, 6 TiB
+    (
+        ["--envs-per-worker", "10000000", "--num-workers", "1"],
+        "error: --envs-per-worker 10,000,000 x --num-workers 1 needs at least 6.",
+    ),
 ]
 
 
@@ -133,3 +146,11 @@ def test_help_shows_each_default_once(name, monkeypatch, capsys):
     text = re.sub(r"[\s│]+", " ", out)  # tyro's box, its line breaks undone
     assert "(default: the number of CPU cores)" in text
     assert "(default: 1e6 for Catch, 1e8 for ALE ids)" in text
+
+
+def test_help_into_a_closed_pipe_ends_quietly():
+    """`python agents/a3c_ff.py --help | head -1`: the pipe is the process boundary."""
+    import sys
+
+    result = run_into_a_closed_pipe([sys.executable, str(SCRIPT_PATHS["a3c_ff"]), "--help"])
+    assert result.stderr == "" and result.returncode == 1, result.stderr

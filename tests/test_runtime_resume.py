@@ -62,8 +62,8 @@ def test_a_flag_that_changes_the_experiment_is_refused_in_one_line(
     assert err.startswith(f"error: {flags[0]} ") and "differs from the run's" in err
     assert {"learning-rate": "0.0003", "t-max": "5", "seed": "7"}[flags[0][2:]] in err
     # nothing written into the run (the folder's lock file, taken before the checkpoint was
-    # read, holds a PID only)
-    assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt", "run.lock"]
+    # read, is removed when the refusal releases it)
+    assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt"]
 
 
 def test_the_same_value_of_any_flag_is_accepted(trained, capsys):
@@ -88,3 +88,23 @@ def test_a_checkpoint_older_than_a_flag_still_loads_stating_the_fallback(trained
 def test_the_resumable_flags_are_the_issues():
     assert {"total_timesteps", "time_limit", "num_workers", "eval_interval", "eval_episodes",
             "checkpoint_interval", "log_interval", "capture_video"} <= set(RESUMABLE)  # fmt: skip
+
+
+def test_a_kept_time_limit_is_announced_with_how_to_change_it(trained, capsys):
+    """A run started with --time-limit stops after as many seconds again when resumed: say so."""
+    module, checkpoint, path = trained
+    checkpoint["args"]["time_limit"] = 90.0
+    args = module.Args(resume=str(path))
+    resumed = resumed_args(module.AGENT, checkpoint, args, given_flags(["--resume"], module.Args))
+    assert resumed.time_limit == 90.0
+    assert capsys.readouterr().out == (
+        "note: the run keeps its --time-limit 90.0: this part stops after that many seconds too; "
+        "--time-limit SECONDS changes it, --time-limit None removes it\n"
+    )
+    for value, shown in (("300", "300.0"), ("None", "None")):
+        argv = ["--resume", str(path), "--time-limit", value]
+        limit = None if value == "None" else float(value)
+        args = module.Args(resume=str(path), time_limit=limit)
+        resumed = resumed_args(module.AGENT, checkpoint, args, given_flags(argv, module.Args))
+        assert resumed.time_limit == limit
+        assert capsys.readouterr().out == f"time_limit 90.0 -> {shown}\n"

@@ -71,3 +71,41 @@ def test_a_folder_without_write_permission_exits_2(tmp_path, monkeypatch, capsys
     code, err = main_exit(load_script("a3c_ff"), ["--runs-root", str(locked)], monkeypatch, capsys)
     assert code == 2 and err.count("\n") == 1, err
     assert list(locked.iterdir()) == []
+
+
+def test_close_removes_the_lock_file_and_a_folder_it_created_empty(tmp_path):
+    kept = RunFolder(tmp_path)  # an existing folder: kept
+    assert (tmp_path / "run.lock").read_text() == f"{os.getpid()}\n"
+    kept.close()
+    assert tmp_path.is_dir() and list(tmp_path.iterdir()) == []
+    created = RunFolder(tmp_path / "new")  # e.g. a refused --resume into a new --run-dir
+    created.close()
+    assert list(tmp_path.iterdir()) == []
+    written = RunFolder(tmp_path / "run")
+    (written.path / "evaluations.csv").write_text("global_step\n")
+    written.close()
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["evaluations.csv"]
+
+
+def test_a_lock_taken_on_a_removed_lock_file_is_taken_again(tmp_path, monkeypatch):
+    """The race that removing the file opens: a process opens run.lock, its holder removes it
+    and closes, and a third process creates a new one. A lock on the removed file would let two
+    processes train there: the lock must end up on the file at the path."""
+    import fcntl
+
+    import a3c_runtime.run_folder as run_folder
+
+    lockf, calls = fcntl.lockf, []
+
+    def replaced_first(fd, operation):
+        if not calls:  # the file this process opened is replaced before it locks it
+            (tmp_path / "run.lock").unlink()
+            (tmp_path / "run.lock").write_text("")
+        calls.append(fd)
+        return lockf(fd, operation)
+
+    monkeypatch.setattr(run_folder.fcntl, "lockf", replaced_first)
+    folder = RunFolder(tmp_path)
+    assert len(calls) == 2
+    assert os.path.samestat(os.fstat(folder.lock), os.stat(tmp_path / "run.lock"))
+    folder.close()

@@ -44,3 +44,23 @@ def test_a_failed_evaluation_row_is_taken_back_and_named(tmp_path, monkeypatch, 
     monkeypatch.setattr(os, "write", write)
     assert csv_path.read_bytes() == before  # whole rows only
     log.close()
+
+
+@pytest.mark.parametrize(
+    ("outcome", "label"),
+    [("done", "final eval"), ("time limit", "final eval"), ("stopped by SIGINT", "last eval")],
+)
+def test_the_closing_line_labels_the_last_evaluation_truthfully(outcome, label, tmp_path, capsys):
+    """A run stopped by a signal takes no final evaluation: its last one (here step 0's) is
+    not the final one, as the closing line once said ("final eval 0.140 at step 0")."""
+    from a3c_runtime.a3c import summarize
+
+    log = runtime.RunLog(tmp_path, SimpleNamespace(total_timesteps=10**6), wall_offset=0.0)
+    log.evaluation({"global_step": 0, "scores": [0.0, 0.28], "seconds": 0.1})
+    log.close()
+    capsys.readouterr()
+    shared = SimpleNamespace(global_step=lambda: 44_430)
+    summary = summarize(outcome, 1000.0, shared, log, tmp_path)
+    line = capsys.readouterr().out
+    assert line.startswith(f"{outcome}: {label} 0.140 at step 0 |"), line
+    assert "| 44,430 steps |" in line and summary["final_eval_step"] == 0

@@ -744,7 +744,8 @@ def test_plot_writes_a_png_and_the_table(fake_agent, tmp_path):
     assert result.returncode == 0, result.stderr
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     ok = [r for r in read_table(tmp_path / "a") if r["status"] == "ok"]
-    in_range = [float(r["score"]) for r in ok if 1e-5 <= float(r["learning-rate"]) <= 1e-2]
+    # the bars average over the range the sweep sampled (LR), as sweep.json says
+    in_range = [float(r["score"]) for r in ok if 1e-6 <= float(r["learning-rate"]) <= 1e-2]
     line = next(line for line in result.stdout.splitlines() if line.startswith("| FF |"))
     assert f"| {len(ok)}/8 | {np.mean(in_range):.3f}" in line
     assert f"(n={len(in_range)})" in line
@@ -823,3 +824,30 @@ def test_an_interrupted_run_resumes_with_its_own_flags(tmp_path):
     resumed = torch.load(checkpoint, weights_only=False)
     assert resumed["global_step"] >= 4000
     assert (resumed["args"]["learning_rate"], resumed["args"]["seed"]) == (0.0005, 5)
+
+
+def test_the_bars_average_over_the_range_the_sweep_sampled(tmp_path, capsys):
+    """The bar chart's title and the table once gave the thesis's [1e-5, 1e-2] for a sweep
+    that sampled [1e-6, 1e-2] (and left its runs below 1e-5 out)."""
+    rows = [("2e-06", "0.1"), ("1e-04", "0.3"), ("3e-03", "0.5")]
+    table = tmp_path / "demo" / "results.csv"
+    table.parent.mkdir()
+    table.write_text(
+        "status,learning-rate,score,score_all\n"
+        + "".join(f"ok,{lr},{score},{score}\n" for lr, score in rows)
+    )
+    out = str(tmp_path / "sweep.png")
+
+    def header(*flags: str) -> str:
+        assert plot_sweep.main([str(table), "-o", out, *flags]) == 0
+        return capsys.readouterr().out.splitlines()[0]
+
+    # no sweep.json: the runs' own range
+    assert "score (final 5), lr in [2e-06, 0.003] |" in header()
+    (table.parent / "sweep.json").write_text(
+        json.dumps({"samples": ["learning-rate=loguniform:1e-06:0.01"]})
+    )
+    assert "score (final 5), lr in [1e-06, 0.01] |" in header()
+    assert plot_sweep.main([str(table), "-o", out]) == 0
+    assert "| 3/3 | 0.300 +- 0.115 (n=3) |" in capsys.readouterr().out
+    assert "lr in [1e-05, 0.01] |" in header("--bar-range", "1e-5", "1e-2")  # as given

@@ -99,7 +99,12 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
     data = {"intro": "# Claims", "outro": "## Missing", "section": [
         {"title": "S", "claim": [{**claim, "line": "missing", "claim": "c", "where": "Fig 1",
                                   "form": "as run", "thesis": "t"}]}]}  # fmt: skip
-    assert "- Fig 1: `make b`" in claims.render(data)  # the command, in the list of what is missing
+    page = claims.render({**data, "missing": "Not run yet:"})
+    assert page.endswith("## Missing\n\nNot run yet:\n\n- Fig 1: `make b`\n")  # the command
+    # every line run: no sentence announcing a list of what is missing, no dangling colon
+    data["section"][0]["claim"][0]["line"] = claim["line"]
+    page = claims.render({**data, "missing": "Not run yet:"})
+    assert page.endswith("## Missing\n") and "Not run yet:" not in page
 
 
 def test_the_page_opens_with_a_tally_of_its_verdicts():

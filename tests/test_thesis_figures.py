@@ -10,14 +10,16 @@ sweep.py's dry run and a stand-in for the sweeps; no agent is trained.
 
 import csv
 import dataclasses
+import json
 import re
 import shlex
 import subprocess
+import sys
 from pathlib import Path
 
 import a3c_runtime as runtime
 import pytest
-from conftest import AGENTS, ROOT, load_script, run_main
+from conftest import AGENTS, ROOT, load_script, run_into_a_closed_pipe, run_main
 
 TOOL = ["-m", "a3c_tools.thesis_figures"]
 REQUIRED = ["fig6.3", "fig6.5", "fig6.6", "fig6.7", "fig6.8", "fig7.1", "fig7.2", "fig7.3",
@@ -317,6 +319,15 @@ def test_dry_run_prints_the_sweeps_and_creates_nothing(tmp_path):
     assert "A3C FF=0.73" in plot and "GLPQ searing=0.81" in plot
 
 
+def test_a_dry_run_into_a_closed_pipe_ends_quietly_creating_nothing(tmp_path):
+    """`... --dry-run | head`: the pipe is the process boundary."""
+    out = tmp_path / "out"
+    argv = ["all", "--runs", "1", "--steps", "1000", "--out", str(out), "--dry-run"]
+    result = run_into_a_closed_pipe([sys.executable, *TOOL, *argv])
+    assert result.stderr == "" and result.returncode == 1, result.stderr
+    assert not out.exists()
+
+
 def test_dry_run_prints_a_shared_sweep_once():
     """A line that several figures share is one sweep: the dry run prints its command once and
     marks its repeats, so the printed commands are what a run of `all` would start."""
@@ -366,8 +377,10 @@ def test_bad_arguments_exit_2_with_one_line_and_create_nothing(tmp_path, args, m
 
 
 def fake_table(folder: Path, runs: int, samples: list[str]) -> None:
-    """What sweep.py would leave in a line's folder: a results.csv of `runs` ok runs."""
+    """What sweep.py would leave in a line's folder: a results.csv of `runs` ok runs, beside the
+    sweep.json that names what it sampled."""
     folder.mkdir(parents=True, exist_ok=True)
+    (folder / "sweep.json").write_text(json.dumps({"samples": samples}))
     parsed = [sweep.parse_sample(s) for s in samples]
     names = [s.name for s in parsed]
     with open(folder / "results.csv", "w", newline="") as f:

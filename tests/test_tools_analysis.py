@@ -98,3 +98,17 @@ def test_trained_scale_reads_each_runs_final_checkpoint(tmp_path, capsys):
         values = numbers(row.split(None, 2)[2])
         assert values[0] == values[1] and values[2] == values[3]  # |h|^2, |w|^2: unchanged
         assert values[4] == 0.0  # the prototypes did not move
+
+
+def test_trained_scale_refuses_a_changed_checkpoint_in_one_line(tmp_path, capsys):
+    for config, script in future_work_trained_scale.CONFIGS.items():
+        module = load_script(Path(script).stem)
+        (tmp_path / config / "runs" / "run-0000").mkdir(parents=True)
+        (tmp_path / config / "results.csv").write_text("run_id,status,seed\nrun-0000,ok,4\n")
+        args = tiny_args(module, seed=4)
+        path = tmp_path / config / "runs" / "run-0000" / "checkpoint.pt"
+        runtime.save_checkpoint(path, shared_for(module, args), args, 0.0, module.AGENT.script)
+        path.write_bytes(path.read_bytes()[:-100])  # truncated
+    assert future_work_trained_scale.main([str(tmp_path)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "is corrupt: not a whole zip archive" in err

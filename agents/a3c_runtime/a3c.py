@@ -3,18 +3,27 @@ actor-learner processes, an evaluator) and `run` (train, or --evaluate a checkpo
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shlex
 import sys
 import time
 import traceback
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from .checkpoints import WriteFailed, checkpoint_step, load_checkpoint, restore, save_checkpoint
+from .checkpoints import (
+    WriteFailed,
+    check_checkpoint_path,
+    checkpoint_step,
+    load_checkpoint,
+    restore,
+    save_checkpoint,
+)
 from .evaluation import (
     EvaluationInterrupted,
     evaluate,
@@ -42,9 +51,10 @@ def train(
     resumed run's checkpoint and its folder, locked before the checkpoint was read."""
     torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
     if args.resume and folder is None:
+        check_checkpoint_path(args.resume, "--resume")  # before the folder is touched
         folder = RunFolder(run_folder_path(args, resuming=True))
     if args.resume and checkpoint is None:
-        checkpoint = load_checkpoint(args.resume, agent)
+        checkpoint = load_checkpoint(args.resume, agent, "--resume")
     seed_everything(args.seed)
     num_actions = probe_env(agent.make_env, args.env)
     # the network is built before the run folder: its constructor rejects bad flags
@@ -64,13 +74,13 @@ def train(
     processes["evaluator"] = (evaluator, agent, shared, args, start_step, initial_params,
                               str(run_dir), evaluations)  # fmt: skip
     supervisor = Supervisor(shared, processes)
-    if checkpoint is not None:
-        print(f"resuming run {run_dir.name} at step {start_step:,} -> {run_dir}", flush=True)
-    else:
-        print(f"run {run_dir.name} -> {run_dir}", flush=True)
-    print(f"pids: {supervisor.pids()}", flush=True)
     log = None
-    try:
+    try:  # (the first lines too: a closed stdout stops the processes like any failure)
+        if checkpoint is not None:
+            print(f"resuming run {run_dir.name} at step {start_step:,} -> {run_dir}", flush=True)
+        else:
+            print(f"run {run_dir.name} -> {run_dir}", flush=True)
+        print(f"pids: {supervisor.pids()}", flush=True)
         # after the fork: the TensorBoard writer's thread must not be forked
         wall_time = checkpoint["wall_time"] if checkpoint else 0.0
         log = RunLog(run_dir, args, wall_time, resumed_step=start_step)
@@ -181,8 +191,11 @@ def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Pa
         "eval_time_s": log.eval_seconds,
         "sps": sps,
     }
+    # "final" only for the evaluation after the last update; a run stopped early (a signal)
+    # took none, and its last one may be step 0's
+    label = "final eval" if outcome in ("done", "time limit") else "last eval"
     eval_text = (
-        f"final eval {last['mean_return']:.3f} at step {last['global_step']:,}"
+        f"{label} {last['mean_return']:.3f} at step {last['global_step']:,}"
         if last
         else "no evaluation"
     )
@@ -196,11 +209,32 @@ def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Pa
     return summary
 
 
+@contextlib.contextmanager
+def closed_stdout_ends_quietly() -> Iterator[None]:
+    """A reader that closes stdout early (`--help | head -1`) ends the command with exit code 1
+    and no BrokenPipeError traceback (Python's recipe, in the signal module's documentation)."""
+    try:
+        try:
+            yield
+        finally:
+            sys.stdout.flush()  # here, where a closed pipe can still be caught
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # so that the flush at exit cannot fail again
+        sys.exit(1)
+
+
 def run(agent: Any) -> int:
     """The command line: train, or --evaluate a checkpoint. Exit codes: 0 ok (a run stopped by
-    a signal included), 1 a process died or a file could not be written, 2 bad usage (a
-    one-line message, nothing created). A run that ends before T_max ends with a line naming
-    the checkpoint that survives and the command that resumes it."""
+    a signal included), 1 a process died or a file could not be written (or stdout was closed),
+    2 bad usage (a one-line message, nothing created). A run that ends before T_max ends with a
+    line naming the checkpoint that survives and the command that resumes it."""
+    with closed_stdout_ends_quietly():
+        return command_line(agent)
+
+
+def command_line(agent: Any) -> int:
+    """run(), stdout open."""
     import tyro
 
     args = tyro.cli(agent.Args)
@@ -211,9 +245,10 @@ def run(agent: Any) -> int:
             evaluate(agent, args)
             return 0
         if args.resume:  # the same experiment, its folder locked before the checkpoint is read
+            check_checkpoint_path(args.resume, "--resume")  # before the folder is touched
             folder = RunFolder(run_folder_path(args, resuming=True))
             try:
-                checkpoint = load_checkpoint(args.resume, agent)
+                checkpoint = load_checkpoint(args.resume, agent, "--resume")
                 given = given_flags(sys.argv[1:], agent.Args)
                 args = resumed_args(agent, checkpoint, args, given)
                 summary = train(agent, resolve_defaults(args), checkpoint, folder)
@@ -228,6 +263,10 @@ def run(agent: Any) -> int:
         print(f"error: {e}", file=sys.stderr)
         print(resume_hint(agent, e.run_dir), file=sys.stderr, flush=True)
         return 1
+    except BrokenPipeError as e:  # stdout closed mid-run: the run stopped; say how to go on
+        if hasattr(e, "run_dir"):
+            print(resume_hint(agent, e.run_dir), file=sys.stderr, flush=True)
+        raise
     except Exception as e:  # a bug: its traceback, then how to go on
         if hasattr(e, "run_dir"):
             traceback.print_exc()
@@ -241,15 +280,18 @@ def run(agent: Any) -> int:
 
 def resume_hint(agent: Any, run_dir: Path) -> str:
     """The closing line of a run that ended before T_max: its surviving checkpoint, that
-    checkpoint's step, and the command that resumes it (or, with none, starts it again)."""
+    checkpoint's step, and the command that resumes it (or, with none that verifies and loads,
+    starts it again)."""
     named = os.path.basename(sys.argv[0]) == os.path.basename(agent.script)
     script = sys.argv[0] if named else os.path.join("agents", agent.script)
     path = run_dir / "checkpoint.pt"
     step = checkpoint_step(path) if path.exists() else None
-    if step is None:
-        again = shlex.join(["python", script, *sys.argv[1:]])
-        return f"no checkpoint was written in {run_dir}; start the run again: {again}"
     relative = os.path.relpath(path)
     shown = str(path) if relative.startswith("..") else relative
+    if step is None:
+        again = shlex.join(["python", script, *sys.argv[1:]])
+        if path.exists():  # changed on disk since it was written: never offered for --resume
+            return f"checkpoint {shown} does not verify (corrupt); start the run again: {again}"
+        return f"no checkpoint was written in {run_dir}; start the run again: {again}"
     resume = shlex.join(["python", script, "--resume", shown])
     return f"checkpoint {shown} (step {step:,}) survives; resume: {resume}"

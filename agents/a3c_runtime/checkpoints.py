@@ -1,13 +1,17 @@
 """Checkpoints: written atomically (a temp file, flushed to disk, then a rename) so that a crash
-or a full disk never leaves a corrupt one or a partial file; validated on load, so that a
-missing, corrupt or foreign checkpoint is a one-line UsageError; restored into the shared
-network and optimizer for --resume."""
+or a full disk never leaves a corrupt one or a partial file, and sealed with a SHA-256 of their
+bytes; verified and validated on load (every zip member's CRC, and the seal), so that a missing,
+changed, truncated or foreign checkpoint is a one-line UsageError before anything uses it;
+restored into the shared network and optimizer for --resume."""
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 import os
+import struct
+import zipfile
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -35,6 +39,10 @@ MOVED_FLAGS = {
     },
     "a3c_lws.py": {("lws_centroid_source", "online"): "future_work/a3c_lws_online.py"},
 }
+# The seal: the zip's comment holds the SHA-256 of every byte before it. torch reads no zip
+# comment, and the CRCs cover only the members' data, not the headers between them.
+SEAL_PREFIX = b"a3c-sha256:"
+END_OF_ARCHIVE = b"PK\x05\x06"  # the end-of-central-directory record: 22 bytes + the comment
 
 
 def save_checkpoint(
@@ -54,7 +62,36 @@ def save_checkpoint(
     }
     buffer = io.BytesIO()  # serialised first, so that a failed write is the OS's own error
     torch.save(checkpoint, buffer)
-    write_atomically(path, buffer.getbuffer())
+    write_atomically(path, seal(buffer.getvalue()))
+
+
+def seal(archive: bytes) -> bytes:
+    """The zip archive torch.save wrote, with the SHA-256 of its bytes as the zip's comment (as
+    it is if torch ever writes another layout: its CRCs are still checked)."""
+    if archive[-22:-18] != END_OF_ARCHIVE or archive[-2:] != b"\x00\x00":
+        return archive
+    length = len(SEAL_PREFIX) + hashlib.sha256().digest_size * 2
+    head = archive[:-2] + struct.pack("<H", length)  # the comment's length is sealed too
+    return head + SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode()
+
+
+def verify_checkpoint(data: bytes) -> str | None:
+    """What is wrong with a checkpoint's bytes, or None if nothing: a member whose CRC fails,
+    an archive that is no zip (truncated, another format), a seal that does not match its
+    bytes. Checkpoints from before the seal (no zip comment) are checked by CRC alone."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            bad_member = archive.testzip()  # reads every member, checking its CRC
+            comment = archive.comment
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, ValueError) as e:
+        return f"not a whole zip archive ({e})"
+    if bad_member is not None:
+        return f"{bad_member} fails its CRC check"
+    if comment:
+        head = data[: len(data) - len(comment)]
+        if comment != SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode():
+            return "its bytes do not match the SHA-256 it was written with"
+    return None
 
 
 class WriteFailed(Exception):
@@ -82,21 +119,46 @@ def write_atomically(path: Path, data: bytes | memoryview) -> None:
 
 
 def checkpoint_step(path: Path) -> int | None:
-    """The global step of a checkpoint that loads, else None."""
+    """The global step of a checkpoint that verifies and loads, else None."""
     try:
-        return int(torch.load(path, map_location="cpu", weights_only=False)["global_step"])
+        data = Path(path).read_bytes()
+        if verify_checkpoint(data) is not None:
+            return None
+        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+        return int(checkpoint["global_step"])
     except Exception:
         return None
 
 
-def load_checkpoint(path: str, agent: Any) -> dict:
-    """Load a checkpoint of this script, or raise UsageError saying what is wrong with it."""
+def check_checkpoint_path(path: str, flag: str | None = None) -> None:
+    """UsageError unless path is a file: a missing path, or a folder (naming the checkpoint in
+    it, if it holds one, as `flag PATH`)."""
+    if os.path.isdir(path):
+        inside = os.path.join(path, "checkpoint.pt")
+        if os.path.isfile(inside):
+            command = f"{flag} {inside}" if flag else inside
+            raise UsageError(f"checkpoint {path!r} is a folder: pass its checkpoint, {command}")
+        raise UsageError(f"checkpoint {path!r} is a folder, and holds no checkpoint.pt")
     if not os.path.isfile(path):
         raise UsageError(f"checkpoint {path!r} does not exist")
+
+
+def load_checkpoint(path: str, agent: Any, flag: str | None = None) -> dict:
+    """Load a checkpoint of this script, or raise UsageError saying what is wrong with it. Its
+    bytes are verified before torch reads them: a changed or truncated file is refused."""
+    check_checkpoint_path(path, flag)
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        data = Path(path).read_bytes()  # read once: what is verified is what is loaded
+    except OSError as e:
+        raise UsageError(f"cannot read checkpoint {path!r}: {e.strerror or e}") from e
+    problem = verify_checkpoint(data)
+    if problem is not None:
+        raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
+    try:
+        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
     except Exception as e:
-        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {e}") from e
+        detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         raise UsageError(f"{path!r} is not a checkpoint written by this script")
     script = checkpoint.get("script")  # absent before it was stored

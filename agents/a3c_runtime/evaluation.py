@@ -159,7 +159,7 @@ def evaluation_episodes(args: Any) -> int:
 
 def evaluate(agent: Any, args: Any) -> np.ndarray:
     """--evaluate: play episodes with a checkpoint's network, print each score and the mean."""
-    checkpoint = load_checkpoint(args.evaluate, agent)
+    checkpoint = load_checkpoint(args.evaluate, agent, "--evaluate")
     try:
         trained = agent.Args(**agent.trained_args(checkpoint))
     except TypeError as e:
@@ -169,6 +169,15 @@ def evaluate(agent: Any, args: Any) -> np.ndarray:
     episodes = evaluation_episodes(args)
     if episodes < 1:
         raise UsageError(f"--eval-episodes must be >= 1 (got {episodes})")
+    if args.render == "human":
+        from catch_env.rendering import NoDisplayError, check_display
+
+        try:
+            check_display()  # rather than episodes played in no window
+        except NoDisplayError as e:
+            raise UsageError(str(e)) from None
+        except ImportError:
+            pass  # the env names what it needs
     seed_everything(args.seed)
     num_actions = probe_env(agent.make_env, trained.env)
     env = agent.make_env(

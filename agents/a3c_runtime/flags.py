@@ -87,7 +87,36 @@ def resolve_defaults(args: Any) -> Any:
     for flag, (value, ok, rule) in checks.items():
         if not (ok and math.isfinite(value)):
             raise UsageError(f"{flag} must be {rule} (got {value})")
+    # (a resumed run's folder is its checkpoint's: a name from before this check still resumes)
+    exp_name = "" if getattr(args, "resume", None) else getattr(args, "exp_name", "")
+    if any(sep and sep in exp_name for sep in ("/", os.sep, os.altsep)):
+        raise UsageError(
+            f"--exp-name {exp_name!r} holds a path separator: it is one part of the run "
+            "folder's name (<env>__<exp-name>__<seed>__<time>); --run-dir names a folder"
+        )
+    check_memory(args.num_workers, envs_per_worker, args.t_max)
     return args
+
+
+def check_memory(num_workers: int, envs_per_worker: int, t_max: int) -> None:
+    """UsageError, before anything is created, when the workers' rollout buffers and their
+    envs' frames alone would not fit in the memory available: (t_max + 1) x K stacked frames
+    per worker, and per env its frame stack and the vector env's frames (Catch's
+    CatchVectorEnv; an ALE env holds more). The network's activations come on top."""
+    from catch_env.catch import VECTOR_FRAMES_PER_ENV, available_memory, format_bytes
+
+    available = available_memory()
+    if available is None:
+        return
+    stack, height, width = OBSERVATION_SHAPE
+    frames_per_env = stack * (t_max + 1) + stack + VECTOR_FRAMES_PER_ENV
+    needed = num_workers * envs_per_worker * frames_per_env * height * width
+    if needed > available:
+        raise UsageError(
+            f"--envs-per-worker {envs_per_worker:,} x --num-workers {num_workers} needs at least "
+            f"{format_bytes(needed)} (the rollout buffers of --t-max {t_max} and the envs' "
+            f"frames), more than the {format_bytes(available)} of memory available"
+        )
 
 
 def resolve_precision(precision: str, envs_per_worker: int) -> str:

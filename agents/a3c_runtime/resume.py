@@ -50,9 +50,9 @@ def show(value: Any) -> str:
 
 def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> Any:
     """The Args of the run being resumed: the checkpoint's, with the RESUMABLE flags given on
-    the command line. Prints a line for each flag that changes and for each flag the checkpoint
-    predates (it takes the value agent.trained_args gives it); UsageError for a given flag that
-    would change the experiment."""
+    the command line. Prints a line for each flag that changes, for each flag the checkpoint
+    predates (it takes the value agent.trained_args gives it) and for a --time-limit the run
+    keeps; UsageError for a given flag that would change the experiment."""
     trained = agent.trained_args(checkpoint)
     values = {}
     for name in (f.name for f in dataclasses.fields(agent.Args)):
@@ -77,6 +77,13 @@ def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> An
             )
         print(f"{name} {show(old)} -> {show(new)}", flush=True)
         values[name] = new
+    if values["time_limit"] is not None and "time_limit" not in given:  # else it is a surprise
+        print(
+            f"note: the run keeps its --time-limit {show(values['time_limit'])}: this part stops "
+            "after that many seconds too; --time-limit SECONDS changes it, --time-limit None "
+            "removes it",
+            flush=True,
+        )
     for name in COMMAND_LINE_ONLY:
         values[name] = getattr(args, name)
     return agent.Args(**values)

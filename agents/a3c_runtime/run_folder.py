@@ -1,6 +1,6 @@
 """The run folder: where it is, that it can be written, and that one process at a time trains
 into it (an OS lock, held by the training process and released by the kernel when it ends, so a
-killed run can be resumed at once)."""
+killed run can be resumed at once; a process that ends normally also removes the lock file)."""
 
 from __future__ import annotations
 
@@ -30,7 +30,8 @@ def run_folder_path(args: Any, resuming: bool) -> Path:
 
 
 class RunFolder:
-    """The run folder, created if need be and locked for this process (`close` releases it).
+    """The run folder, created if need be and locked for this process (`close` releases it and
+    removes the lock file, and the folder if this process created it and wrote nothing there).
     UsageError, with nothing created, when it cannot be made or written, or another process
     holds it."""
 
@@ -38,6 +39,7 @@ class RunFolder:
         self.path = path
         if path.exists() and not path.is_dir():
             raise UsageError(f"cannot use {path} as the run folder: it is a file")
+        self.created = not path.exists()
         try:
             path.mkdir(parents=True, exist_ok=True)
         except OSError as e:
@@ -45,6 +47,7 @@ class RunFolder:
         if not os.access(path, os.W_OK | os.X_OK):
             raise UsageError(f"cannot write into the run folder {path}: permission denied")
         self.lock = self._lock(path / LOCK_FILE)
+        self.owner = os.getpid()  # a forked child holds no lock: it must not remove the file
         for stale in path.glob("*.tmp"):  # a checkpoint half written when its run was killed
             with contextlib.suppress(OSError):
                 stale.unlink()
@@ -53,19 +56,28 @@ class RunFolder:
     def _lock(lock_path: Path) -> int:
         # a POSIX record lock: held by this process only (forked workers do not inherit it) and
         # released by the kernel when the process ends, however it ends
-        try:
-            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as e:
-            raise UsageError(f"cannot write into the run folder {lock_path.parent}: {e}") from e
-        try:
-            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+        while True:
+            try:
+                fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as e:
+                raise UsageError(f"cannot write into the run folder {lock_path.parent}: {e}") from e
+            try:
+                fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                os.close(fd)
+                raise UsageError(
+                    f"the run folder {lock_path.parent} is in use by process {holder} (a run or "
+                    "resume training there); wait for it to end or stop it"
+                ) from None
+            # the last holder removes the file when it closes: a lock taken on the file it
+            # removed guards nothing, so lock the file now at the path instead
+            try:
+                if os.path.samestat(os.fstat(fd), os.stat(lock_path)):
+                    break
+            except FileNotFoundError:
+                pass
             os.close(fd)
-            raise UsageError(
-                f"the run folder {lock_path.parent} is in use by process {holder} (a run or "
-                "resume training there); wait for it to end or stop it"
-            ) from None
         with contextlib.suppress(OSError):  # the PID only names the holder to a second process
             pid = f"{os.getpid()}\n".encode()
             os.pwrite(fd, pid, 0)  # written, then cut to length: never an empty file
@@ -74,5 +86,12 @@ class RunFolder:
 
     def close(self) -> None:
         if self.lock >= 0:
+            owner = os.getpid() == self.owner
+            if owner:
+                with contextlib.suppress(OSError):  # removed while held: no one else can take it
+                    (self.path / LOCK_FILE).unlink()
             os.close(self.lock)  # closing releases the lock
             self.lock = -1
+            if owner and self.created:  # e.g. a refused --resume into a new --run-dir
+                with contextlib.suppress(OSError):
+                    self.path.rmdir()  # only if empty

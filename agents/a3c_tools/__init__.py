@@ -18,9 +18,12 @@ Nothing runs at import; the tools' own dependencies (matplotlib, scipy) are the 
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
+from typing import NoReturn
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository: the tools work on a clone
 AGENTS = ROOT / "agents"
@@ -37,3 +40,19 @@ def load_script(path: Path | str) -> ModuleType:
     sys.modules[path.stem] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
     return module
+
+
+def run_main(main: Callable[[], int | None]) -> NoReturn:
+    """A tool's `python -m` entry: exit with main()'s code. A reader that closes stdout early
+    (`... --dry-run | head`) ends the tool with exit code 1 and no BrokenPipeError traceback
+    (Python's recipe, in the signal module's documentation)."""
+    try:
+        try:
+            code = main()
+        finally:
+            sys.stdout.flush()  # here, where a closed pipe can still be caught
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # so that the flush at exit cannot fail again
+        sys.exit(1)
+    sys.exit(code)

@@ -17,7 +17,7 @@ import csv
 import re
 from pathlib import Path
 
-from a3c_tools import ROOT
+from a3c_tools import ROOT, run_main
 
 FOLDER = ROOT / "results" / "future_work_catch"
 CONFIGS = ("lpq_growth", "glpq_growth")
@@ -75,4 +75,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main(main)

@@ -15,7 +15,7 @@ import argparse
 import numpy as np
 import torch
 
-from a3c_tools import AGENTS, load_script
+from a3c_tools import AGENTS, load_script, run_main
 
 SCRIPTS = (
     ("uniform", AGENTS / "a3c_glpq.py"),
@@ -70,4 +70,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main(main)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ROOT
+from a3c_tools import ROOT, run_main
 
 FOLDER = ROOT / "results" / "future_work_catch"
 # (panel title, [(baseline, variant), ...]): each idea against the thesis's version of its script
@@ -166,4 +166,4 @@ def print_fall_back(rows: list[dict[str, str]]) -> None:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main(main)

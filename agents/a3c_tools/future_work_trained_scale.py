@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from a3c_tools import AGENTS, ROOT, load_script
+from a3c_tools import AGENTS, ROOT, load_script, run_main
 from a3c_tools.future_work_initial_policy import features
 
 FOLDER = ROOT / "results" / "future_work_catch"
@@ -104,11 +105,18 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(folder / c / "runs") for c in CONFIGS if not (folder / c / "runs").is_dir()]
     if missing:
         parser.error(f"no run folders ({', '.join(missing)}): run the configurations first")
+    from a3c_runtime import UsageError
+
+    try:
+        rows = scale_rows(folder)
+    except UsageError as e:  # a missing, changed or foreign checkpoint: one line
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     print(HEADER)
-    for row in scale_rows(folder):
+    for row in rows:
         print(row)
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main(main)

@@ -3,9 +3,9 @@
     python -m a3c_tools.plot_evaluations runs/<run>/evaluations.csv [more.csv ...] -o curve.png
 
 Each file is one line: the mean evaluation return against global steps, with +-1 standard error of
-that mean (std / sqrt(episodes)) shaded. A second x axis on top gives the wall time of the first
-file; --wall-time instead draws a second panel with every line against its own wall time (for runs
-of different speeds, such as several scripts compared). --threshold draws a horizontal line (e.g.
+that mean (std / sqrt(episodes)) shaded. --wall-time draws a second panel with every line against
+its own wall time (for runs of different speeds, such as several scripts compared); without it
+the figure has no wall-time axis. --threshold draws a horizontal line (e.g.
 0.9 for Catch) and prints the first evaluation that reaches it; --reference VALUE=LABEL draws a
 labelled dotted line, such as random play's score on an Atari game.
 """
@@ -20,6 +20,8 @@ import numpy as np
 
 matplotlib.use("Agg")  # files only; no display needed
 import matplotlib.pyplot as plt  # noqa: E402
+
+from a3c_tools import run_main
 
 COLUMNS = ("global_step", "wall_time_s", "mean_return", "std_return", "episodes")
 
@@ -85,18 +87,8 @@ def plot(paths: list[Path], labels: list[str], output: Path, threshold: float | 
             each.annotate(label, (0.01, value), xycoords=("axes fraction", "data"), fontsize=8,
                           va="bottom")  # fmt: skip
         each.grid(alpha=0.3)
-    first = read_evaluations(paths[0])
     if wall_time_panel:
         ax_wall.set_xlabel("wall time (minutes)")
-    elif len(first["global_step"]) > 1 and first["global_step"][-1] > first["global_step"][0]:
-        # wall time axis of the first run, by linear interpolation between its evaluations
-        steps, walls = first["global_step"], first["wall_time_s"]
-
-        top = ax.secondary_xaxis(
-            "top",
-            functions=(lambda x: np.interp(x, steps, walls), lambda x: np.interp(x, walls, steps)),
-        )
-        top.set_xlabel(f"wall time of {labels[0]} (s)")
     ax.set_xlabel("global steps")
     ax.set_ylabel("evaluation mean return")
     if title:
@@ -140,4 +132,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

@@ -9,8 +9,9 @@ as in the thesis:
   evaluations"), against log10 of the learning rate;
 - upper right: each run's score, the mean of its final 5 evaluations;
 - below: a bar per configuration, the mean score of the final 5 evaluations over the runs whose
-  learning rate lies in [1e-5, 1e-2] (--bar-range), with the standard error of that mean and the
-  number of runs.
+  learning rate lies in the range the sweeps sampled (from each table's sweep.json, else the
+  runs' own range; [1e-5, 1e-2] in the thesis's sweeps) or in --bar-range, with the standard
+  error of that mean and the number of runs; its title gives that range.
 
 The curves follow the thesis's plotting code: the runs are sorted by log10(learning rate),
 linearly interpolated onto 50 evenly spaced points of the x range, and smoothed with a
@@ -39,12 +40,15 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import sys
 import textwrap
 from pathlib import Path
 
 import numpy as np
+
+from a3c_tools import run_main
 
 GRID_POINTS = 50  # the thesis interpolated onto np.linspace(lo, hi), 50 points
 SAVGOL_WINDOW = 5
@@ -110,6 +114,38 @@ def read_table(path: str, x_column: str) -> dict:
         "runs": len(rows),
         "ok": len(ok),
     }
+
+
+def sampled_range(path: str, x_column: str) -> tuple[float, float] | None:
+    """The range LOW, HIGH that the sweep of the results table at path sampled x_column from,
+    as its sweep.json (beside the table) says; None without one, or for a choice."""
+    config = Path(path).with_name("sweep.json")
+    try:
+        samples = json.loads(config.read_text()).get("samples", [])
+    except (OSError, ValueError, AttributeError):
+        return None
+    names = {x_column.replace("_", "-"), x_column.replace("-", "_")}
+    for sample in samples:  # NAME=loguniform:LOW:HIGH, NAME=uniform:LOW:HIGH, NAME=choice:...
+        name, _, dist = str(sample).partition("=")
+        kind, *bounds = dist.split(":")
+        if name.strip().lstrip("-") in names and kind != "choice" and len(bounds) == 2:
+            try:
+                return float(bounds[0]), float(bounds[1])
+            except ValueError:
+                return None
+    return None
+
+
+def default_bar_range(paths: list[str], tables: list[dict], x_column: str) -> tuple[float, float]:
+    """The bars' range: what the sweeps sampled (all of the tables' ranges together), else the
+    runs' own range, else the thesis's [1e-5, 1e-2]."""
+    ranges = [sampled_range(path, x_column) for path in paths]
+    ranges += [(t["values"].min(), t["values"].max()) for t, r in zip(tables, ranges, strict=True)
+               if r is None and t["values"].size]  # fmt: skip
+    ranges = [r for r in ranges if r is not None]
+    if not ranges:
+        return 1e-5, 1e-2
+    return float(min(low for low, _ in ranges)), float(max(high for _, high in ranges))
 
 
 def read_joint(path: str, x_column: str, y_column: str) -> dict:
@@ -328,9 +364,10 @@ def main(argv: list[str] | None = None) -> int:
         "--bar-range",
         nargs=2,
         type=float,
-        default=(1e-5, 1e-2),
+        default=None,
         metavar=("LOW", "HIGH"),
-        help="x values averaged in the bar chart (default: 1e-5 1e-2)",
+        help="x values averaged in the bar chart (default: the range the sweeps sampled, from "
+        "their sweep.json, else the runs' range; 1e-5 1e-2 in the thesis's sweeps)",
     )
     parser.add_argument("--title", default=None)
     parser.add_argument(
@@ -384,21 +421,25 @@ def main(argv: list[str] | None = None) -> int:
         x_range = decades(values)
     else:
         x_range = (float(values.min()), float(values.max()))
+    if args.bar_range:
+        bar_range = tuple(args.bar_range)
+    else:
+        bar_range = default_bar_range(args.tables, tables, args.x)
     plot(
         tables,
         labels,
         args.out,
         x_label=args.x,
         x_range=x_range,
-        bar_range=tuple(args.bar_range),
+        bar_range=bar_range,
         title=args.title,
         log_x=log_x,
         references=references,
     )
-    print(summary_table(tables, labels, tuple(args.bar_range), references, x_name))
+    print(summary_table(tables, labels, bar_range, references, x_name))
     print(f"wrote {args.out}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

@@ -115,7 +115,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import load_script
+from a3c_tools import load_script, run_main
 
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
 SEED_STRIDE = 1000  # run i gets seed + SEED_STRIDE * i
@@ -993,4 +993,4 @@ def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import bootstrap
 
+from a3c_tools import run_main
+
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
@@ -155,8 +157,10 @@ def render(claims: dict) -> str:
             out.append("| " + " | ".join(" ".join(cell.split()) for cell in cells) + " |")
         out.append("")
     out.append(claims["outro"].strip())
-    out += [""] + [f"- {', '.join(dict.fromkeys(wheres))}: `{command}`"
-                   for command, wheres in missing.items()]  # fmt: skip
+    if missing:  # the sentence that introduces the list only with a list to introduce
+        out += ["", claims.get("missing", "The rows *not run yet*, and their commands:").strip()]
+        out += [""] + [f"- {', '.join(dict.fromkeys(wheres))}: `{command}`"
+                       for command, wheres in missing.items()]  # fmt: skip
     return "\n".join(out) + "\n"
 
 
@@ -183,4 +187,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

@@ -56,6 +56,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from a3c_tools import run_main
+
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
@@ -99,7 +101,7 @@ class Plot:
     two flags sampled jointly."""
 
     x: str = "learning-rate"
-    bar_range: tuple[float, float] | None = None  # None: plot_sweep.py's, [1e-5, 1e-2]
+    bar_range: tuple[float, float] | None = None  # None: plot_sweep.py's, as sampled
     suffix: str = ""  # OUT/FIG/FIG{suffix}.png
     y: str | None = None
 
@@ -613,4 +615,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main)

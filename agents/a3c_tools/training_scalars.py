@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from a3c_tools import run_main
+
 MARKS = [m * 1_000_000 for m in (0.5, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)]
 ROWS = (
     ("learning rate", "charts/learning_rate", False),
@@ -68,4 +70,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main(main)
