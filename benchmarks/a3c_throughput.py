@@ -278,7 +278,7 @@ def run_script(
     a3c.replay_activations = a3c_runtime.replay_activations
     catch_env.wrappers.make_vector_env = MAKE_VECTOR_ENV
     per_cpu = summary["global_step"] / (children_cpu_seconds() - cpu_before) * num_workers
-    faults = (children_page_faults() - faults_before) / summary["global_step"]
+    faults = (children_page_faults() - faults_before) / max(summary["global_step"], 1)
     return summary["sps"], per_cpu, faults
 
 

@@ -28,10 +28,10 @@ def run_and_check(name, flags, tmp_path, monkeypatch, capsys, steps, interval, a
     saved = {}
     save = runtime.a3c.save_checkpoint
 
-    def save_and_keep(path, shared, args, wall_time, script=""):
-        saved["model"] = copy.deepcopy(shared.model.state_dict())
-        saved["args"] = args
-        return save(path, shared, args, wall_time, script)
+    def save_and_keep(path, shared, args, wall_time, script="", snapshot=None):
+        model = (snapshot or {}).get("model") or shared.model.state_dict()
+        saved["model"], saved["args"] = copy.deepcopy(model), args
+        return save(path, shared, args, wall_time, script, snapshot)
 
     monkeypatch.setattr(runtime.a3c, "save_checkpoint", save_and_keep)
     module = load_script(name)

@@ -328,8 +328,9 @@ def test_a_failed_tensorboard_write_ends_the_run_in_one_line(tmp_path):
         (events,) = (disk / "run").glob("events.out.tfevents.*")
         assert stderr.strip().splitlines() == [
             f"error: could not write {events}: No space left on device",
-            f"no checkpoint was written in {disk / 'run'}; start the run again: python {SCRIPT} "
-            + " ".join(flags),
+            # the command names the folder: the fresh attempt must not mix with this one
+            f"no checkpoint was written in {disk / 'run'}; start the run again: rm -r -- "
+            f"{disk / 'run'} && python {SCRIPT} " + " ".join(flags),
         ], stderr
         assert_all_gone(pids)
     finally:
@@ -356,3 +357,55 @@ def test_no_room_for_the_shared_network_is_one_line_and_creates_nothing(tmp_path
     assert line.startswith("error: cannot put the network and its optimizer statistics (10.")
     assert line.endswith("free space in /dev/shm or raise the file size limit (ulimit -f)")
     assert not run_dir.exists()
+
+
+EXACT = ["--num-workers", "1", "--total-timesteps", "6000", "--eval-interval", "1000",
+         "--checkpoint-interval", "500", "--eval-episodes", "5",
+         "--envs-per-worker", "4"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> Path:
+    """One worker, Catch: the run the interrupted ones must end as."""
+    run_dir = tmp_path_factory.mktemp("exact") / "run"
+    result = run(*EXACT, "--run-dir", str(run_dir))
+    assert result.returncode == 0, result.stderr
+    return run_dir
+
+
+def evaluations_of(run_dir: Path) -> list[tuple[str, str, str]]:
+    """(step, mean, std) of each evaluation: what must repeat (not its wall time)."""
+    return [
+        (r["global_step"], r["mean_return"], r["std_return"]) for r in read_evaluations(run_dir)
+    ]
+
+
+@pytest.mark.parametrize("fault", ["SIGINT", "SIGTERM", "SIGKILL of the main process"])
+def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tmp_path, fault):
+    """With one worker, a run stopped after a checkpoint (a signal, or its main process killed)
+    and resumed ends with the same weights, bit for bit, and the same evaluations (steps and
+    scores) as the run that went on: every evaluation and checkpoint is taken at its step, and
+    the checkpoint holds the worker's generator, envs and frames (a3c_runtime.snapshots)."""
+    run_dir = tmp_path / "run"
+    process, pids = start(*EXACT, "--run-dir", str(run_dir))
+    while not (run_dir / "checkpoint.pt").exists():
+        time.sleep(0.05)
+    time.sleep(0.5)  # somewhere after the first checkpoint, between marks
+    os.kill(process.pid, signal.SIGKILL if "SIGKILL" in fault else getattr(signal, fault))
+    process.communicate(timeout=30)
+    assert_all_gone(pids)
+    step = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
+    assert 0 < step < 6000, step
+    resumed = run("--resume", str(run_dir / "checkpoint.pt"))
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resuming run run at step {step:,}" in resumed.stdout
+    assert evaluations_of(run_dir) == evaluations_of(uninterrupted)
+    ours = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    theirs = torch.load(uninterrupted / "checkpoint.pt", weights_only=False)
+    assert ours["global_step"] == theirs["global_step"] == 6000
+    for key, value in theirs["model"].items():
+        assert torch.equal(ours["model"][key], value), key
+    for ours_stat, theirs_stat in zip(
+        ours["optimizer"]["square_avg"], theirs["optimizer"]["square_avg"], strict=True
+    ):
+        assert torch.equal(ours_stat, theirs_stat)

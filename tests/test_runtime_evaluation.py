@@ -1,5 +1,6 @@
 """a3c_runtime.evaluation: the evaluator process and --evaluate."""
 
+import pickle
 from types import SimpleNamespace
 
 import a3c_runtime as runtime
@@ -11,22 +12,49 @@ import catch_env  # noqa: F401  (registers Catch-v0)
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
-def test_evaluator_scores_the_initial_network_at_step_0(name, tmp_path):
-    """No handshake: the evaluator gets a copy of the initial weights, taken before any worker
-    could update the shared network; it stops with the run."""
+def test_the_evaluator_scores_the_copies_it_is_handed_in_order(name, tmp_path):
+    """The evaluator evaluates each (step, theta) it is handed, in order, whatever the shared
+    network holds meanwhile, and stops at None."""
     module = load_script(name)
     args = tiny_args(module, eval_episodes=2)
     shared = shared_for(module, args)
-    initial = [p.detach().clone() for p in shared.params]
+    initial = runtime.snapshots.copy_of(shared.model.state_dict())
     with torch.no_grad():
         for p in shared.params:
             p.fill_(float("nan"))  # what the workers did meanwhile must not matter
-    shared.stop.set()
-    evaluations = FORK.SimpleQueue()
-    runtime.evaluator(module.AGENT, shared, args, 0, initial, str(tmp_path), evaluations)
-    result = evaluations.get()
-    assert result["global_step"] == 0 and len(result["scores"]) == 2
+    requests, evaluations = FORK.Queue(), FORK.SimpleQueue()
+    for step in (0, 500):
+        requests.put(pickle.dumps((step, initial)))
+    requests.put(None)
+    runtime.evaluator(module.AGENT, shared, args, requests, str(tmp_path), evaluations)
+    results = [evaluations.get(), evaluations.get()]
+    assert [r["global_step"] for r in results] == [0, 500]
+    assert all(len(r["scores"]) == 2 and all(s in (0, 1) for s in r["scores"]) for r in results)
     assert evaluations.empty()
+
+
+def test_an_evaluation_is_the_same_at_the_same_step():
+    """Its episodes' seeds and sampled actions come from --seed and the step: the evaluation of
+    a step in a resumed run is the one the run that went on took."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module, eval_episodes=6)
+    torch.manual_seed(0)
+    model = module.AGENT.build_network(3, args)
+
+    def scores(step: int, seed: int) -> list[float]:
+        envs = runtime.make_eval_envs(module.AGENT, args, None)
+        torch.manual_seed(step)  # the process's own generator must not matter
+        evaluated = runtime.evaluate_network(model, envs, step, dataclass_replace(args, seed))
+        return evaluated["scores"]
+
+    assert scores(1000, 1) == scores(1000, 1)
+    assert len({tuple(scores(step, seed)) for step, seed in ((1000, 1), (2000, 1), (1000, 2))}) > 1
+
+
+def dataclass_replace(args, seed: int):
+    import dataclasses
+
+    return dataclasses.replace(args, seed=seed)
 
 
 def test_evaluate_plays_a_handful_of_episodes_when_rendering():

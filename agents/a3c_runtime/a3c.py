@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import pickle
 import shlex
 import sys
 import time
@@ -13,7 +14,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from .checkpoints import (
@@ -32,11 +32,14 @@ from .evaluation import (
     make_eval_envs,
 )
 from .flags import UsageError, probe_env, resolve_defaults
-from .hogwild import Shared, annealed_lr, process_seed, seed_everything
+from .hogwild import Shared, annealed_lr, seed_everything
 from .resume import given_flags, resumed_args
 from .run_folder import RunFolder, run_folder_path
-from .run_log import RunLog, format_seconds
+from .run_log import RunLog, format_seconds, logged_steps
+from .snapshots import CHECKPOINT, EVALUATE, copy_of
 from .supervision import FORK, RunFailed, Supervisor
+
+LATE = 2  # evaluations pending beyond which the console says the evaluator is behind
 
 
 def train(
@@ -65,14 +68,24 @@ def train(
     if checkpoint is not None:
         restore(shared, checkpoint, args, args.resume, agent)
     start_step = shared.global_step()
-    initial_params = [p.detach().clone() for p in shared.params]  # the evaluator's step 0
+    # the evaluations not taken yet: a fresh run's step 0; a resumed run's, from its checkpoint
+    pending = list(checkpoint.get("pending_evaluations", [])) if checkpoint else []
+    if checkpoint is None:
+        pending.append((0, copy_of(shared.model.state_dict())))
+    # the marks of the evaluations and checkpoints, and the workers' saved states, before the
+    # workers fork (a3c_runtime.snapshots)
+    shared.marks.start(start_step, args, checkpoint.get("workers") if checkpoint else None)
     if folder is None:  # a new run's folder: created now that its flags have been checked
-        folder = RunFolder(run_folder_path(args, resuming=False))  # locked: one writer
+        folder = RunFolder(run_folder_path(args, resuming=False), new_run=True)  # locked
     run_dir = folder.path
-    evaluations = FORK.SimpleQueue()
+    # (an evaluation the killed run logged after its checkpoint was written is not taken again)
+    logged = logged_steps(run_dir / "evaluations.csv", start_step)
+    pending = [request for request in pending if request[0] not in logged]
+    evaluations, requests = FORK.SimpleQueue(), FORK.Queue()
+    for request in pending:
+        requests.put(pickle.dumps(request))  # by value (see a3c_runtime.snapshots.send)
     processes = {f"worker {i}": (agent.worker, i, shared, args) for i in range(args.num_workers)}
-    processes["evaluator"] = (evaluator, agent, shared, args, start_step, initial_params,
-                              str(run_dir), evaluations)  # fmt: skip
+    processes["evaluator"] = (evaluator, agent, shared, args, requests, str(run_dir), evaluations)
     supervisor = Supervisor(shared, processes)
     log = None
     try:  # (the first lines too: a closed stdout stops the processes like any failure)
@@ -84,7 +97,10 @@ def train(
         # after the fork: the TensorBoard writer's thread must not be forked
         wall_time = checkpoint["wall_time"] if checkpoint else 0.0
         log = RunLog(run_dir, args, wall_time, resumed_step=start_step)
-        outcome, sps = watch(agent, supervisor, shared, args, log, evaluations, run_dir, start_step)
+        outcome, sps = watch(
+            agent, supervisor, shared, args, log, (requests, evaluations, pending), run_dir,
+            start_step,
+        )  # fmt: skip
         log.close()
     except BaseException as e:
         supervisor.stop(finished=False)  # (stopped already, unless RunLog itself failed)
@@ -105,22 +121,46 @@ def watch(
     shared: Shared,
     args: Any,
     log: RunLog,
-    evaluations: Any,
+    evaluation_queues: tuple[Any, Any, list],
     run_dir: Path,
     start_step: int,
 ) -> tuple[str, float]:
-    """The main process while the workers train: log progress and evaluations, checkpoint, and
-    stop at T_max, the time limit, a signal or a failure; then the final checkpoint and the final
-    evaluation, of the network after the last update. Returns (outcome, steps/s)."""
+    """The main process while the workers train: hand the evaluator the copies of theta the
+    workers took at the evaluation marks and log its results, write the checkpoints they took
+    at the checkpoint marks, log progress, and stop at T_max, the time limit, a signal or a
+    failure; then the final checkpoint and the final evaluation, of the network after the last
+    update. Returns (outcome, steps/s)."""
+    requests, evaluations, pending = evaluation_queues
     checkpoint_path = run_dir / "checkpoint.pt"
     outcome = None
     steady_start = None  # (time, step) once every worker has finished a rollout, for the SPS
     last_log = (time.time(), start_step, shared.stats.clone())
-    next_checkpoint = (start_step // args.checkpoint_interval + 1) * args.checkpoint_interval
+    final_states: dict[int, list] = {}  # each worker's state as its loop ended
+    behind = [False]  # the evaluator is more than LATE evaluations behind (announced once)
 
     def drain() -> None:
+        """The workers' snapshots and the evaluator's results so far, in order."""
+        while (event := shared.marks.receive()) is not None:
+            if event[0] == EVALUATE:
+                pending.append(event[1:])
+                requests.put(pickle.dumps(event[1:]))
+            elif event[0] == CHECKPOINT:
+                step, model, optimizer, workers = event[1:]
+                snapshot = {"model": model, "optimizer": optimizer, "global_step": step,
+                            "workers": workers, "pending_evaluations": list(pending)}  # fmt: skip
+                save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script,
+                                snapshot)  # fmt: skip
+            else:  # FINAL
+                final_states[event[1]] = event[2]
         while not evaluations.empty():
-            log.evaluation(evaluations.get())
+            result = evaluations.get()
+            log.evaluation(result)
+            pending[:] = [p for p in pending if p[0] != result["global_step"]]
+        if len(pending) > LATE and not behind[0]:
+            waiting = f"the one of step {pending[0][0]:,} waits"
+            print(f"note: the evaluator is {len(pending)} evaluations behind the training "
+                  f"({waiting}); each is taken all the same", flush=True)  # fmt: skip
+        behind[0] = len(pending) > LATE
 
     loop_ended = False
     try:
@@ -141,10 +181,6 @@ def watch(
                 outcome = "done"
             elif args.time_limit is not None and now - log.start >= args.time_limit:
                 outcome = "time limit"
-            if global_step >= next_checkpoint:
-                save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script)
-                interval = args.checkpoint_interval
-                next_checkpoint = (global_step // interval + 1) * interval
             if now - last_log[0] >= args.log_interval:
                 stats = shared.stats.clone()
                 sps = (global_step - last_log[1]) / (now - last_log[0])
@@ -154,21 +190,26 @@ def watch(
         loop_ended = True
     finally:  # a failed write ends the loop too: the processes stop, the evaluator at once
         finished = loop_ended and outcome in ("done", "time limit") and not supervisor.failures
-        supervisor.stop(finished)
+        # the workers end their loops, their last snapshots drained; then a finished run's
+        # evaluator takes every evaluation left (None: no more), any other's stops at once
+        supervisor.stop_workers(drain)
+        requests.put(None)
+        supervisor.stop(finished, drain)
     end_time, global_step = time.time(), shared.global_step()
     drain()
+    shared.marks.close()
     if supervisor.failures:
         raise RunFailed("\n".join(supervisor.failures))
     if supervisor.signal_name is not None and finished:
         outcome = f"stopped by {supervisor.signal_name} in the final evaluation"
-    save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script)
+    snapshot = {"workers": final_states, "pending_evaluations": list(pending)}
+    save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script, snapshot)
     if outcome in ("done", "time limit"):
         video_dir = str(run_dir / "videos") if args.capture_video else None
         envs = make_eval_envs(agent, args, video_dir, prefix="final")
-        rng = np.random.default_rng(process_seed(args.seed, args.num_workers + 1))
         try:
             stopping = lambda: shared.signalled  # noqa: E731
-            log.evaluation(evaluate_network(shared.model, envs, rng, global_step, args, stopping))
+            log.evaluation(evaluate_network(shared.model, envs, global_step, args, stopping))
         except EvaluationInterrupted:
             outcome = f"stopped by {supervisor.signal_name} in the final evaluation"
         for env in envs:
@@ -290,6 +331,9 @@ def resume_hint(agent: Any, run_dir: Path) -> str:
     shown = str(path) if relative.startswith("..") else relative
     if step is None:
         again = shlex.join(["python", script, *sys.argv[1:]])
+        if any(a == "--run-dir" or a.startswith("--run-dir=") for a in sys.argv[1:]):
+            # the command names this folder: a fresh attempt must not mix with the dead one
+            again = f"rm -r -- {shlex.quote(str(run_dir))} && {again}"
         if path.exists():  # changed on disk since it was written: never offered for --resume
             return f"checkpoint {shown} does not verify (corrupt); start the run again: {again}"
         return f"no checkpoint was written in {run_dir}; start the run again: {again}"

@@ -46,19 +46,32 @@ END_OF_ARCHIVE = b"PK\x05\x06"  # the end-of-central-directory record: 22 bytes 
 
 
 def save_checkpoint(
-    path: Path, shared: Shared, args: Any, wall_time: float, script: str = ""
+    path: Path,
+    shared: Shared,
+    args: Any,
+    wall_time: float,
+    script: str = "",
+    snapshot: dict | None = None,
 ) -> None:
-    """Write atomically (temp file + rename) so that a crash never leaves a corrupt checkpoint."""
+    """Write atomically (temp file + rename) so that a crash never leaves a corrupt checkpoint.
+    Of theta, the optimizer statistics and the global step as they are in `shared`, or as a
+    worker copied them at a checkpoint mark (`snapshot`: model, optimizer, global_step); either
+    may add what an exact resume needs (a3c_runtime.snapshots): `workers`, each worker's pickled
+    state, and `pending_evaluations`, the (step, theta) evaluations not taken yet."""
+    snapshot = snapshot or {}
     checkpoint = {
         "format": CHECKPOINT_FORMAT,
         "script": script,
         "network": type(shared.model).__name__,
-        "model": {k: v.detach().clone() for k, v in shared.model.state_dict().items()},
-        "optimizer": shared.optimizer.state_dict(),
+        "model": snapshot.get("model")
+        or {k: v.detach().clone() for k, v in shared.model.state_dict().items()},
+        "optimizer": snapshot.get("optimizer") or shared.optimizer.state_dict(),
         "optimizer_name": args.optimizer,
-        "global_step": shared.global_step(),
+        "global_step": snapshot.get("global_step", shared.global_step()),
         "wall_time": wall_time,
         "args": asdict(args),
+        "workers": snapshot.get("workers", {}),
+        "pending_evaluations": snapshot.get("pending_evaluations", []),
     }
     buffer = io.BytesIO()  # serialised first, so that a failed write is the OS's own error
     torch.save(checkpoint, buffer)

@@ -5,6 +5,8 @@
 from __future__ import annotations
 
 import os
+import pickle
+import queue
 import time
 from collections.abc import Callable
 from typing import Any
@@ -31,11 +33,12 @@ def play_episodes(
     seeds: list[int] | None = None,
     should_stop: Callable[[], bool] = lambda: False,
     greedy: bool = False,
+    generator: torch.Generator | None = None,
 ) -> np.ndarray:
     """Play one episode in each env in lock-step with one batched forward per step, sampling
-    actions from pi (greedy: argmax pi, the first of tied actions); returns the raw game
-    scores. A recurrent network (initial_state) carries a state row per running episode.
-    Raises EvaluationInterrupted once should_stop() is true."""
+    actions from pi with `generator` (greedy: argmax pi, the first of tied actions); returns
+    the raw game scores. A recurrent network (initial_state) carries a state row per running
+    episode. Raises EvaluationInterrupted once should_stop() is true."""
     observations = [env.reset(seed=None if seeds is None else seeds[i])[0] for i, env in
                     enumerate(envs)]  # fmt: skip
     scores = np.zeros(len(envs))
@@ -55,7 +58,8 @@ def play_episodes(
             if greedy:
                 chosen = log_probs.argmax(1).tolist()
             else:
-                chosen = torch.multinomial(log_probs.exp(), 1).squeeze(1).tolist()
+                chosen = torch.multinomial(log_probs.exp(), 1, generator=generator)
+                chosen = chosen.squeeze(1).tolist()
             still_running = []
             for i, action in zip(running, chosen, strict=True):
                 observations[i], _, terminated, truncated, info = envs[i].step(action)
@@ -86,63 +90,55 @@ def make_eval_envs(
     return envs
 
 
+EVALUATION_STREAM = 7_307  # keys the evaluation episodes' random numbers apart from the workers'
+
+
 def evaluate_network(
     model: nn.Module,
     envs: list[gym.Env],
-    rng: np.random.Generator,
     global_step: int,
     args: Any,
     should_stop: Callable[[], bool] = lambda: False,
 ) -> dict:
     """One evaluation of the thesis protocol: an episode per env, sampling from pi (argmax pi
-    with --eval-greedy)."""
+    with --eval-greedy). Its random numbers (the episodes' seeds, the sampled actions) come from
+    --seed and the step, so the evaluation of a step is the same in a resumed run."""
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
         model.set_progress(global_step / args.total_timesteps)
     start = time.time()
+    rng = np.random.default_rng([args.seed, EVALUATION_STREAM, global_step])
     seeds = rng.integers(2**31, size=len(envs)).tolist()
-    scores = play_episodes(model, envs, seeds, should_stop, args.eval_greedy)
+    generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
+    scores = play_episodes(model, envs, seeds, should_stop, args.eval_greedy, generator)
     return {"global_step": global_step, "scores": scores.tolist(), "seconds": time.time() - start}
 
 
 def evaluator(
-    agent: Any,
-    shared: Shared,
-    args: Any,
-    start_step: int,
-    initial_params: list[torch.Tensor],
-    run_dir: str,
-    evaluations: Any,
+    agent: Any, shared: Shared, args: Any, requests: Any, run_dir: str, evaluations: Any
 ) -> None:
-    """The evaluator process: evaluate a snapshot of the global network every eval_interval
-    global steps until the run stops; a fresh run's step 0 uses initial_params, copied before
-    the workers started. SIGTERM drops the evaluation it plays."""
-    seed = process_seed(args.seed, args.num_workers)
-    seed_everything(seed)
-    rng = np.random.default_rng(seed)
+    """The evaluator process: evaluates each (step, theta) that the main process hands it
+    (`requests`: the copies the workers took at the evaluation marks, step 0's first), in
+    order, until None ends the run's requests. SIGTERM drops the evaluation it plays."""
+    seed_everything(process_seed(args.seed, args.num_workers))
     envs = make_eval_envs(
         agent, args, os.path.join(run_dir, "videos") if args.capture_video else None
     )
     model = agent.build_network(envs[0].action_space.n, args)
-    params = list(model.parameters())
 
     def signalled() -> bool:  # a running evaluation completes when the run ends, unless...
         return shared.signalled or shared.orphaned()
 
     try:
-        if start_step == 0:
-            with torch.no_grad():
-                torch._foreach_copy_(params, initial_params)
-            evaluations.put(evaluate_network(model, envs, rng, 0, args, signalled))
-        next_eval = (start_step // args.eval_interval + 1) * args.eval_interval
-        while shared.keep_running():
-            global_step = shared.global_step()
-            if next_eval <= global_step < args.total_timesteps:
-                with torch.no_grad():
-                    torch._foreach_copy_(params, shared.params)
-                evaluations.put(evaluate_network(model, envs, rng, global_step, args, signalled))
-                next_eval = (global_step // args.eval_interval + 1) * args.eval_interval
-            else:
-                time.sleep(0.05)
+        while not signalled():
+            try:
+                request = requests.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            if request is None:  # the run's last request was handed over
+                break
+            step, state = pickle.loads(request)
+            model.load_state_dict(state)
+            evaluations.put(evaluate_network(model, envs, step, args, signalled))
     except EvaluationInterrupted:
         pass
     for env in envs:

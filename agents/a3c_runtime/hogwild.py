@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import random
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -13,6 +14,7 @@ import torch
 import torch.nn as nn
 
 from .flags import UsageError
+from .snapshots import StepMarks, unpickled
 
 
 class Shared:
@@ -46,9 +48,29 @@ class Shared:
         self.stop = ctx.Event()  # the workers stop after their rollout, the evaluator after its
         self.main_pid = os.getpid()
         self.signalled = False  # this process got SIGTERM (or, in the main process, a signal)
+        self.marks = StepMarks(ctx)  # evaluations and checkpoints at exact steps
 
     def global_step(self) -> int:
         return int(self.steps.sum()) + int(self.base_step)
+
+    def count_steps(
+        self, worker_id: int, steps: int, state: Callable[[], tuple[Any, ...]] | None = None
+    ) -> None:
+        """A worker's update took `steps` env steps. Where the global step reaches an evaluation
+        or checkpoint mark, theta is copied there for it (a3c_runtime.snapshots); `state()`
+        gives what a checkpoint keeps of this worker (its generator, envs, next frames...)."""
+        self.steps[worker_id] += steps
+        self.marks.reached(self, worker_id, self.global_step(), state)
+
+    def resumed(self, worker_id: int, *fresh: Any) -> tuple[Any, ...]:
+        """A worker's state from the checkpoint of a resumed run, in the order its `state()`
+        gives it, each part that the checkpoint holds in place of the fresh one given."""
+        saved = self.marks.resumed_states.get(worker_id)
+        return tuple(fresh) if saved is None else unpickled(saved, fresh)
+
+    def finish_worker(self, worker_id: int, state: Callable[[], tuple[Any, ...]]) -> None:
+        """A worker's state as its loop ends, for the run's last checkpoint."""
+        self.marks.finished(worker_id, state, self.orphaned())
 
     def keep_running(self) -> bool:
         """False once the run is stopping: the stop event, a signal to this process, or (in a

@@ -29,16 +29,35 @@ def run_folder_path(args: Any, resuming: bool) -> Path:
     return root / f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}"
 
 
+RUN_FILES = ("checkpoint.pt", "evaluations.csv", "events.out.tfevents.*")
+
+
+def check_no_run_in(path: Path) -> None:
+    """A new run's folder holds no other run: a fresh attempt never mixes with a dead one."""
+    found = sorted({f.name for pattern in RUN_FILES for f in path.glob(pattern)})
+    if not found:
+        return
+    if (path / "checkpoint.pt").exists():
+        todo = (
+            f"resume it (--resume {path / 'checkpoint.pt'}), remove it, or pass another --run-dir"
+        )
+    else:
+        todo = f"remove it (rm -r -- {path}) or pass another --run-dir"
+    raise UsageError(f"the run folder {path} holds another run ({', '.join(found[:3])}): {todo}")
+
+
 class RunFolder:
     """The run folder, created if need be and locked for this process (`close` releases it and
     removes the lock file, and the folder if this process created it and wrote nothing there).
     UsageError, with nothing created, when it cannot be made or written, or another process
     holds it."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, new_run: bool = False):
         self.path = path
         if path.exists() and not path.is_dir():
             raise UsageError(f"cannot use {path} as the run folder: it is a file")
+        if new_run:
+            check_no_run_in(path)
         self.created = not path.exists()
         try:
             path.mkdir(parents=True, exist_ok=True)

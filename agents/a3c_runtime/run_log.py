@@ -41,6 +41,15 @@ def drop_rows_after(csv_path: Path, step: int) -> None:
               f"step {step:,} dropped", flush=True)  # fmt: skip
 
 
+def logged_steps(csv_path: Path, up_to: int) -> set[int]:
+    """The steps of the evaluations.csv rows up to step up_to (none without the file)."""
+    if not csv_path.exists():
+        return set()
+    with open(csv_path, newline="") as f:
+        steps = {int(row["global_step"]) for row in csv.DictReader(f)}
+    return {step for step in steps if step <= up_to}
+
+
 def last_evaluation(csv_path: Path) -> dict | None:
     """The last row of an evaluations.csv (numbers parsed), or None."""
     if not csv_path.exists():

@@ -114,24 +114,42 @@ class Supervisor:
     def workers_done(codes: dict[str, int | None]) -> bool:
         return all(code == 0 for name, code in codes.items() if name != "evaluator")
 
-    def stop(self, finished: bool) -> None:
-        """Stop every process: the workers finish their rollout; a finished run's evaluator
-        completes the evaluation it plays (unless a signal comes), any other's drops it."""
+    def stop_workers(self, drain: Callable[[], None] = lambda: None) -> None:
+        """The workers end their loops (after their rollout) and exit; drain() reads what they
+        send meanwhile (a worker's last snapshot waits in its queue until it is read)."""
         self.shared.stop.set()
-        evaluator = self.processes.get("evaluator")
-        if evaluator is not None and not finished:
-            evaluator.terminate()  # SIGTERM: it drops the evaluation it plays
         deadline = time.time() + 10
         for name, process in self.processes.items():
-            if name == "evaluator" and finished:
-                while process.is_alive() and self.signal_name is None:
-                    process.join(0.1)
-                if self.signal_name is not None:
-                    process.terminate()
-            process.join(max(0.1, deadline - time.time()))
+            if name == "evaluator":
+                continue
+            while process.is_alive() and time.time() < deadline:
+                drain()
+                process.join(0.05)
             if process.is_alive():
                 process.kill()
                 process.join(1)
+
+    def stop(self, finished: bool, drain: Callable[[], None] = lambda: None) -> None:
+        """Stop every process: the workers finish their rollout; a finished run's evaluator
+        takes the evaluations it was handed (unless a signal comes), any other's drops the one
+        it plays at once."""
+        self.stop_workers(drain)
+        evaluator = self.processes.get("evaluator")
+        if evaluator is not None:
+            if not finished:
+                evaluator.terminate()  # SIGTERM: it drops the evaluation it plays
+            while evaluator.is_alive() and finished and self.signal_name is None:
+                drain()
+                evaluator.join(0.05)
+            if self.signal_name is not None:
+                evaluator.terminate()
+            deadline = time.time() + 10
+            while evaluator.is_alive() and time.time() < deadline:
+                drain()
+                evaluator.join(0.05)
+            if evaluator.is_alive():
+                evaluator.kill()
+                evaluator.join(1)
         self.read_errors()
         evaluator_failed = evaluator is not None and evaluator.exitcode not in (0, None)
         if evaluator_failed and finished and self.signal_name is None and not self.failures:

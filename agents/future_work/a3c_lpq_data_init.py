@@ -393,6 +393,12 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
     done_values = np.zeros((args.t_max, num_envs), dtype=np.float32)  # V(s_last) if truncated
     stats = shared.worker_stats(worker_id)  # Shared.STATS, added to by name
     obs, _ = envs.reset(seed=seed)
+
+    def worker_state() -> tuple:  # what a checkpoint keeps of this worker, for an exact resume
+        return rng, envs, obs_buf[0].numpy()
+
+    # a resumed run goes on where its checkpoint left this worker (a3c_runtime.snapshots)
+    rng, envs, obs = shared.resumed(worker_id, rng, envs, obs)
     obs_buf[0].copy_(torch.from_numpy(obs))
     # --precision: the acting and the learning forward passes under bf16 autocast or not, their
     # outputs cast to float32 for the sampling and the loss; backward and optimizer outside it
@@ -456,7 +462,9 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
         grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
         shared.optimizer.step(grads, annealed_lr(args, global_step))
 
-        shared.steps[worker_id] += n * num_envs
+        obs_buf[0].copy_(obs_buf[n])  # the next rollout starts where this one stopped
+        # the steps taken; at an evaluation or checkpoint mark theta is copied there
+        shared.count_steps(worker_id, n * num_envs, worker_state)
         stats.add(
             updates=1,
             policy_loss=policy_loss.item(),
@@ -464,7 +472,7 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
             entropy=entropy.item(),
             grad_norm=grad_norm,
         )
-        obs_buf[0].copy_(obs_buf[n])  # the next rollout starts where this one stopped
+    shared.finish_worker(worker_id, worker_state)  # for the run's last checkpoint
     envs.close()
 
 

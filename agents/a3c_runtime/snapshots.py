@@ -1,0 +1,137 @@
+"""Exact steps: evaluations and checkpoints are taken at the step the flags name, by the worker
+whose update reaches it, and a checkpoint holds each worker's own state, so that a resumed run
+is the run it continues.
+
+A worker counts its steps with `Shared.count_steps` after each update. When the global step
+reaches the next evaluation mark (a multiple of --eval-interval) or checkpoint mark (of
+--checkpoint-interval), that worker copies theta there (and, for a checkpoint, the optimizer's
+statistics and, with one worker, its own state: its random generator, its envs and the frames
+it acts on next) and sends the copy to the main process (`Shared.events`), which hands
+evaluations to the evaluator and writes checkpoints. With one worker every evaluation and
+checkpoint is therefore of theta exactly at its step, and a run stopped anywhere (Ctrl-C,
+SIGTERM, a killed main process after a checkpoint) and resumed ends with the same weights and
+evaluations as the run that was not stopped. With several workers (Hogwild) the others go on
+updating theta while the copy is taken, and their own states are saved only when the run stops
+normally: evaluations are of theta at (about) their step, and a resumed run is a run like the
+stopped one, not the same run.
+
+A worker's state is pickled; what cannot be pickled (ale-py's C++ vector env) is left out, and
+a resumed run makes that part afresh (its envs start new games)."""
+
+from __future__ import annotations
+
+import contextlib
+import pickle
+import queue
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+NEVER = 2**62  # a mark no run reaches: no snapshots until a run sets the marks
+EVALUATE, CHECKPOINT, FINAL = "evaluate", "checkpoint", "final"
+
+
+def pickled(objects: tuple[Any, ...]) -> list[bytes | None]:
+    """Each object pickled, or None where it cannot be (it is made afresh on resume)."""
+    states = []
+    for obj in objects:
+        try:
+            states.append(pickle.dumps(obj))
+        except (TypeError, AttributeError, pickle.PicklingError):
+            states.append(None)
+    return states
+
+
+def unpickled(states: list[bytes | None], fresh: tuple[Any, ...]) -> tuple[Any, ...]:
+    """The saved objects, the fresh ones where none was saved; a fresh object replaced by its
+    saved state is closed (an env)."""
+    restored = []
+    for state, obj in zip(states, fresh, strict=True):
+        if state is None:
+            restored.append(obj)
+            continue
+        if callable(getattr(obj, "close", None)):
+            obj.close()
+        restored.append(pickle.loads(state))
+    return tuple(restored)
+
+
+def copy_of(tensors: Any) -> Any:
+    """A detached copy of a state dict (or a nested list of tensors) to send elsewhere."""
+    if torch.is_tensor(tensors):
+        return tensors.detach().clone()
+    if isinstance(tensors, dict):
+        return {key: copy_of(value) for key, value in tensors.items()}
+    if isinstance(tensors, (list, tuple)):
+        return type(tensors)(copy_of(value) for value in tensors)
+    return tensors
+
+
+def next_mark(step: int, interval: int) -> int:
+    """The first multiple of interval after step."""
+    return (step // interval + 1) * interval
+
+
+class StepMarks:
+    """The marks of the next evaluation and checkpoint, shared by the processes, and what a
+    worker does when its update reaches one (see the module docstring)."""
+
+    def __init__(self, ctx: Any):
+        self.marks = torch.full((2,), NEVER, dtype=torch.int64).share_memory_()
+        self.lock = ctx.Lock()  # one worker at a time takes a snapshot and moves the mark
+        self.events = ctx.Queue()  # to the main process: (kind, step, ...)
+        self.eval_interval = self.checkpoint_interval = self.total = NEVER
+        self.exact = False  # one worker: checkpoints carry its state
+        self.resumed_states: dict[int, list[bytes | None]] = {}
+
+    def start(self, start_step: int, args: Any, resumed_states: dict | None) -> None:
+        """Set the marks for a run from start_step (before the workers fork)."""
+        self.eval_interval, self.checkpoint_interval = args.eval_interval, args.checkpoint_interval
+        self.total, self.exact = args.total_timesteps, args.num_workers == 1
+        self.marks[0] = next_mark(start_step, self.eval_interval)
+        self.marks[1] = next_mark(start_step, self.checkpoint_interval)
+        self.resumed_states = {int(k): v for k, v in (resumed_states or {}).items()}
+
+    def reached(self, shared: Any, worker_id: int, step: int, state: Callable | None) -> None:
+        """After an update that took the global step to `step`: the snapshots of the marks it
+        reached, and the marks moved past it."""
+        if step < int(self.marks.min()):
+            return
+        with self.lock:
+            if step >= int(self.marks[0]):
+                if step < self.total:  # the evaluation at T_max is the run's final one
+                    self.send(EVALUATE, step, copy_of(shared.model.state_dict()))
+                self.marks[0] = next_mark(step, self.eval_interval)
+            if step >= int(self.marks[1]):
+                states = {worker_id: pickled(state())} if self.exact and state else {}
+                model = copy_of(shared.model.state_dict())
+                optimizer = copy_of(shared.optimizer.state_dict())
+                self.send(CHECKPOINT, step, model, optimizer, states)
+                self.marks[1] = next_mark(step, self.checkpoint_interval)
+
+    def finished(self, worker_id: int, state: Callable, orphaned: bool) -> None:
+        """A worker's state as its loop ends, for the run's last checkpoint. With its main
+        process gone, nothing: nobody will read it, and what this process sent but could not
+        hand over must not hold it at its exit."""
+        if orphaned:
+            self.events.cancel_join_thread()
+        elif int(self.marks.min()) < NEVER:  # in a run (not a worker called by a test alone)
+            self.send(FINAL, worker_id, pickled(state()))
+
+    def send(self, *event: Any) -> None:
+        """An event for the main process, as bytes: tensors by value (torch's own pickling for
+        multiprocessing would share them through a file descriptor of this process)."""
+        self.events.put(pickle.dumps(event))
+
+    def receive(self) -> tuple | None:
+        """The next event, or None when there is none yet (in the main process)."""
+        try:
+            return pickle.loads(self.events.get_nowait())
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.events.close()
+            self.events.join_thread()
