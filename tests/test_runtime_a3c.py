@@ -409,3 +409,26 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
         ours["optimizer"]["square_avg"], theirs["optimizer"]["square_avg"], strict=True
     ):
         assert torch.equal(ours_stat, theirs_stat)
+
+
+def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
+    """The evaluator held still (SIGSTOP) while the workers train: the copies of theta taken at
+    the marks wait for it, the console says it is behind, and every evaluation is taken, in
+    order, at its step."""
+    run_dir = tmp_path / "run"
+    flags = ["--num-workers", "2", "--envs-per-worker", "4", "--total-timesteps", "24000",
+             "--eval-interval", "1000", "--eval-episodes", "2", "--log-interval", "1",
+             "--run-dir", str(run_dir)]  # fmt: skip
+    process, pids = start(*flags)
+    wait_for_progress(process)
+    os.kill(pids["evaluator"], signal.SIGSTOP)
+    time.sleep(4)  # several marks pass meanwhile (the note comes past LATE = 2 waiting)
+    os.kill(pids["evaluator"], signal.SIGCONT)
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode == 0, stderr
+    assert re.search(r"note: the evaluator is \d+ evaluations behind the training", stdout)
+    steps = [int(row["global_step"]) for row in read_evaluations(run_dir)]
+    marks = list(range(0, 24000, 1000))
+    assert len(steps) == len(marks) + 1 and steps == sorted(steps), steps
+    assert all(mark <= step < mark + 1000 for mark, step in zip(marks, steps, strict=False))
+    assert steps[-1] >= 24000

@@ -109,3 +109,29 @@ def test_a_lock_taken_on_a_removed_lock_file_is_taken_again(tmp_path, monkeypatc
     assert len(calls) == 2
     assert os.path.samestat(os.fstat(folder.lock), os.stat(tmp_path / "run.lock"))
     folder.close()
+
+
+@pytest.mark.parametrize(
+    ("files", "advice"),
+    [
+        (["evaluations.csv", "events.out.tfevents.1.vm.2.0"], "remove it (rm -r -- "),
+        (["checkpoint.pt", "evaluations.csv"], "resume it (--resume "),
+    ],
+)
+def test_a_new_run_never_mixes_with_another_in_its_folder(
+    tmp_path, monkeypatch, capsys, files, advice
+):
+    """A fresh attempt into the folder of a dead one (its evaluations, its events) would append
+    to them: refused in one line saying what to do, with nothing created or changed."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    for name in files:
+        (run_dir / name).write_text("old\n")
+    with pytest.raises(UsageError, match="holds another run"):
+        RunFolder(run_dir, new_run=True)
+    argv = ["--total-timesteps", "100", "--run-dir", str(run_dir)]
+    code, err = main_exit(load_script("a3c_ff"), argv, monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1 and advice in err, err
+    assert sorted(p.name for p in run_dir.iterdir()) == sorted(files)
+    assert all((run_dir / name).read_text() == "old\n" for name in files)
+    RunFolder(run_dir).close()  # a resumed run's folder is its own: no such check
