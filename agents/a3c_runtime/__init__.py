@@ -13,6 +13,8 @@ module per concern:
 - `run_folder`: the run folder, checked and locked (one writer at a time);
 - `run_log`: TensorBoard, evaluations.csv, the console;
 - `flags`: env-dependent defaults, the flag checks (UsageError), --precision;
+- `snapshots`: evaluations and checkpoints at the exact steps the flags name, and each worker's
+  state in the checkpoint, so that a resumed run is the run it continues;
 - `replay`: the activation replay that spares the update its forward pass.
 
 A script gives `run` an `Agent` from its `main`; see `Agent` for what each field must be.
@@ -79,9 +81,11 @@ class Agent:
       value is refused);
     - `worker(worker_id, shared, args)`: the actor-learner loop. It runs while
       `shared.keep_running()` and the global step is below T_max, reads and updates
-      `shared.params` with `shared.optimizer`, counts its env steps in
-      `shared.steps[worker_id]` and adds its statistics (`Shared.STATS`) by name to
-      `shared.worker_stats(worker_id)`;
+      `shared.params` with `shared.optimizer`, counts its env steps after each update with
+      `shared.count_steps(worker_id, steps, worker_state)` (worker_state() gives what a
+      checkpoint keeps of it), starts from `shared.resumed(worker_id, ...)` and ends with
+      `shared.finish_worker(worker_id, worker_state)`, and adds its statistics (`Shared.STATS`)
+      by name to `shared.worker_stats(worker_id)`;
     - `checkpoint_defaults`: flags newer than some checkpoints, with the value those
       checkpoints' runs had where it is not the flag's default (e.g. SS's --conv-layout: final
       before it existed);
