@@ -10,7 +10,12 @@ taking the faults in turn:
 - SIGKILL of a worker, SIGKILL of the main process, SIGTERM or SIGINT of the main process;
 - the disk filling up: the run folder lies on a small tmpfs (mounted here; needs root), which a
   file fills at the random time, so that the run's next write fails. The file is removed before
-  the run is resumed, as a user would free the space.
+  the run is resumed, as a user would free the space;
+- a corrupt checkpoint: once the run has ended, 64 bytes in the middle of its checkpoint are
+  flipped; `--resume` must refuse it in one line, exit code 2, leaving the file as it is; then
+  the good bytes are put back, as from a backup;
+- a sweep race: two sweeps of tiny runs started at the same instant into one new --out; exactly
+  one must run (its run recorded once), the other exit 2 naming the folder's holder.
 
 Then it resumes the run (`--resume <run>/checkpoint.pt`, nothing else) until it reaches its
 target step, or starts it again where the fault came before its first checkpoint. It checks:
@@ -26,6 +31,7 @@ started with. It prints a line per trial and the totals; the exit code is 1 if a
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import random
 import re
@@ -37,10 +43,12 @@ import time
 from pathlib import Path
 
 import torch
+from a3c_runtime.checkpoints import verify_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "agents" / "a3c_ff.py"
-FAULTS = ("SIGKILL worker", "SIGKILL main", "SIGTERM", "SIGINT", "disk full")
+FAULTS = ("SIGKILL worker", "SIGKILL main", "SIGTERM", "SIGINT", "disk full", "corrupt checkpoint",
+          "sweep race")  # fmt: skip
 # the closing line of a run that ended before its last step
 HINT = (
     r"(checkpoint \S+ \(step [\d,]+\) survives; resume: python \S+ --resume "
@@ -50,9 +58,12 @@ DISK_BYTES = 64 << 20  # the tmpfs of a disk-full trial: room for the run, until
 
 
 def checkpoint_state(path: Path) -> dict | None:
-    """The checkpoint's step and flags if it loads, else None."""
+    """The checkpoint's step and flags if it verifies (its CRCs and seal) and loads, else None."""
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        data = path.read_bytes()
+        if verify_checkpoint(data) is not None:
+            return None
+        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
         return {"step": int(checkpoint["global_step"]), "args": checkpoint["args"]}
     except Exception:
         return None
@@ -125,7 +136,31 @@ def fill(disk: Path) -> Path:
     return filler
 
 
+def sweep_race(index: int, work: Path) -> dict:
+    """Two sweeps of one tiny run each, started at the same instant into one new --out."""
+    out = work / f"race{index}"
+    command = [sys.executable, "-m", "a3c_tools.sweep", str(SCRIPT), "--out", str(out), "--runs",
+               "1", "--total-timesteps", "1000", "--", "--num-workers", "1", "--eval-interval",
+               "500", "--eval-episodes", "2"]  # fmt: skip
+    sweeps = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, cwd=ROOT) for _ in range(2)]  # fmt: skip
+    done = [sweep.communicate(timeout=300) for sweep in sweeps]
+    codes = sorted(sweep.returncode for sweep in sweeps)
+    loser = next((err for sweep, (_, err) in zip(sweeps, done, strict=True)
+                  if sweep.returncode == 2), "")  # fmt: skip
+    rows = (
+        (out / "results.csv").read_text().splitlines()[1:] if (out / "results.csv").exists() else []
+    )
+    ok = codes == [0, 2] and "held by another sweep" in loser and len(rows) == 1
+    return {"fault": "sweep race", "lost": 0, "orphans": [], "attempts": 2, "restarted": False,
+            "exit": codes[-1], "ended_as_promised": ok, "partial_files": 0, "reached": ok,
+            "same_flags": ok, "final_step": 1000 if ok else None,
+            "last_line": (loser.strip().splitlines() or [""])[-1][:160]}  # fmt: skip
+
+
 def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) -> dict:
+    if fault == "sweep race":
+        return sweep_race(index, work)
     disk = work / f"trial{index}"
     if fault == "disk full" and not mount_tmpfs(disk):
         return {"fault": fault, "skipped": "mount -t tmpfs needs root"}
@@ -149,6 +184,8 @@ def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) ->
         os.kill(first.pids[rng.choice(["worker 0", "worker 1"])], 9)
     elif fault == "SIGKILL main":
         os.kill(first.process.pid, 9)
+    elif fault == "corrupt checkpoint":
+        pass  # the run ends by itself; its last checkpoint is corrupted then
     elif fault in ("SIGTERM", "SIGINT"):
         # SIGINT as a terminal's Ctrl-C sends it, to the whole group; SIGTERM as `kill` does
         signum = 15 if fault == "SIGTERM" else 2
@@ -165,7 +202,7 @@ def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) ->
     result["last_line"] = last_line[:160]
     finished_first = first.process.returncode == 0 and last_line.startswith("done:")
     expected_exit = {"SIGKILL worker": 1, "SIGKILL main": -9, "SIGTERM": 0, "SIGINT": 0,
-                     "disk full": 1}[fault]  # fmt: skip
+                     "disk full": 1, "corrupt checkpoint": 0}[fault]  # fmt: skip
     hint = re.match(HINT, last_line)
     # a run the fault reached after it finished (or, for SIGKILL of the main process, that
     # could not say anything) is not held to the closing line
@@ -178,6 +215,8 @@ def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) ->
         result["lost"] += 1
     if filler is not None:
         filler.unlink()
+    if fault == "corrupt checkpoint" and after is not None:
+        result["ended_as_promised"] &= refuses_a_corrupt_checkpoint(run_dir / "checkpoint.pt", rng)
     state, finished = after, False
     while not finished and result["attempts"] < 5:  # resume to the end
         result["attempts"] += 1
@@ -202,6 +241,22 @@ def trial(index: int, fault: str, rng: random.Random, total: int, work: Path) ->
     if fault == "disk full":
         subprocess.run(["umount", "-l", str(disk)], check=False)
     return result
+
+
+def refuses_a_corrupt_checkpoint(path: Path, rng: random.Random) -> bool:
+    """Flip 64 bytes in the middle of the checkpoint: --resume must refuse it in one line, exit
+    2, and leave it as it is; then its good bytes go back (a backup) for the run to go on."""
+    good = path.read_bytes()
+    start = len(good) // 2 + rng.randrange(-1000, 1000)
+    bad = good[:start] + bytes(b ^ 0xFF for b in good[start : start + 64]) + good[start + 64 :]
+    path.write_bytes(bad)
+    refused = Attempt(["--resume", str(path)])
+    refused.process.wait(120)
+    lines = refused.output().strip().splitlines()
+    ok = (refused.process.returncode == 2 and len(lines) == 1 and "is corrupt" in lines[0]
+          and path.read_bytes() == bad)  # fmt: skip
+    path.write_bytes(good)
+    return ok
 
 
 def main(argv: list[str] | None = None) -> int:
