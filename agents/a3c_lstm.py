@@ -124,6 +124,13 @@ class Args:
     """global steps between checkpoints; also at the end"""
     log_interval: float = 5.0
     """seconds between console progress lines and TensorBoard scalars"""
+    track: bool = False
+    """log the run to Weights & Biases (the `wandb` extra): the TensorBoard scalars synced, the
+    flags as its config"""
+    wandb_project_name: str = "deep-rl-video-games"
+    """the W&B project of --track"""
+    wandb_entity: str | None = None
+    """the W&B entity (team or user) of --track; by default yours"""
     runs_root: str = "runs"
     """the folder that gets a new run folder runs_root/<run_name>"""
     run_dir: str | None = None

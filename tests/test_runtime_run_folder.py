@@ -135,3 +135,16 @@ def test_a_new_run_never_mixes_with_another_in_its_folder(
     assert sorted(p.name for p in run_dir.iterdir()) == sorted(files)
     assert all((run_dir / name).read_text() == "old\n" for name in files)
     RunFolder(run_dir).close()  # a resumed run's folder is its own: no such check
+
+
+def test_a_namespaced_env_id_names_one_run_folder(tmp_path):
+    """ALE/Breakout-v5 (the v5 ids, sticky actions) gives runs/ALE-Breakout-v5__..., one folder
+    in --runs-root, not a folder ALE/ holding the run."""
+    from types import SimpleNamespace
+
+    from a3c_runtime.run_folder import run_folder_path
+
+    args = SimpleNamespace(run_dir=None, runs_root=str(tmp_path), env="ALE/Breakout-v5",
+                           exp_name="a3c_ff", seed=1)  # fmt: skip
+    path = run_folder_path(args, resuming=False)
+    assert path.parent == tmp_path and path.name.startswith("ALE-Breakout-v5__a3c_ff__1__")

@@ -3,6 +3,7 @@ one-line UsageError, and --precision."""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 import sys
@@ -95,6 +96,8 @@ def resolve_defaults(args: Any) -> Any:
             "folder's name (<env>__<exp-name>__<seed>__<time>); --run-dir names a folder"
         )
     check_memory(args.num_workers, envs_per_worker, args.t_max)
+    if getattr(args, "track", False) and importlib.util.find_spec("wandb") is None:
+        raise UsageError("--track needs wandb: pip install -e './agents[wandb]'")
     return args
 
 

@@ -19,6 +19,9 @@ RESUMABLE = (
     "checkpoint_interval",
     "log_interval",
     "capture_video",
+    "track",
+    "wandb_project_name",
+    "wandb_entity",
 )
 # about this command, not the experiment: where it writes (by default the checkpoint's folder)
 COMMAND_LINE_ONLY = ("resume", "evaluate", "render", "run_dir", "runs_root")

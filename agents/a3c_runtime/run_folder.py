@@ -26,7 +26,8 @@ def run_folder_path(args: Any, resuming: bool) -> Path:
     root = Path(args.runs_root)
     if root.exists() and not root.is_dir():
         raise UsageError(f"--runs-root {root} is not a folder")
-    return root / f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    env = args.env.replace("/", "-")  # ALE/Breakout-v5: one folder, not ALE/<run>
+    return root / f"{env}__{args.exp_name}__{args.seed}__{int(time.time())}"
 
 
 RUN_FILES = ("checkpoint.pt", "evaluations.csv", "events.out.tfevents.*")

@@ -62,6 +62,25 @@ def last_evaluation(csv_path: Path) -> dict | None:
     return {"global_step": int(row["global_step"]), "mean_return": float(row["mean_return"])}
 
 
+def start_wandb(args: Any, run_dir: Path) -> Any:
+    """--track: a Weights & Biases run (CleanRL's way) before the TensorBoard writer exists, so
+    that its scalars are synced; the flags are its config, the run folder its name. WANDB_MODE
+    (online, offline) and the credentials are W&B's own settings."""
+    import wandb
+
+    return wandb.init(
+        project=args.wandb_project_name,
+        entity=args.wandb_entity,
+        name=run_dir.name,
+        dir=str(run_dir),
+        config=vars(args),
+        sync_tensorboard=True,
+        resume="allow",
+        id=run_dir.name.replace("__", "-"),  # a resumed run continues its W&B run
+        settings=wandb.Settings(quiet=True),
+    )
+
+
 class RunLog:
     """The main process's outputs: TensorBoard scalars, evaluations.csv and the console. A write
     that fails raises WriteFailed naming the file; a failed row of evaluations.csv is taken back,
@@ -89,6 +108,7 @@ class RunLog:
         if os.fstat(self.csv_fd).st_size == 0:
             self.append_row(CSV_COLUMNS)
         self.quiet_writer_thread()
+        self.wandb = start_wandb(args, run_dir) if getattr(args, "track", False) else None
         with self.writing_events():
             # purge_step: TensorBoard hides a resumed run's old events from that step on
             self.writer = SummaryWriter(
@@ -188,3 +208,6 @@ class RunLog:
             if self.csv_fd >= 0:
                 os.close(self.csv_fd)
                 self.csv_fd = -1
+            if self.wandb is not None:
+                self.wandb.finish()
+                self.wandb = None
