@@ -1,11 +1,9 @@
 """Tests of a3c_tools.thesis_claims (docs/claims.md from the committed results): the page holds
-what the script makes of the data, the verdict rule on hand-made intervals, the paired bootstrap
-against known samples, and the handling of lines not run yet."""
+what the script makes of the data, and the handling of lines not run yet. The verdict rule and
+the paired bootstrap, a3c_tools.paired's, are tested in test_compare.py."""
 
 import csv
 
-import numpy as np
-import pytest
 from a3c_tools import thesis_claims as claims  # noqa: E402
 from conftest import ROOT, run_main
 
@@ -41,40 +39,6 @@ def test_every_claim_names_its_place_form_and_evidence_and_its_lines_exist_or_a_
     for figure in ("6.3", "6.5", "6.6", "6.7", "6.8", "7.1", "7.2", "7.3", "7.5", "7.6", "7.7",
                    "6.9", "6.10", "7.8", "A.1", "A.2", "A.3", "C.1", "Chapter 8"):  # fmt: skip
         assert figure in wheres, figure
-
-
-@pytest.mark.parametrize(
-    ("expect", "effect", "low", "high", "verdict"),
-    [
-        ("better", 0.10, 0.02, 0.20, "reproduced"),
-        ("better", -0.10, -0.20, -0.02, "contradicted"),
-        ("worse", -0.10, -0.20, -0.02, "reproduced"),
-        ("worse", 0.10, 0.02, 0.20, "contradicted"),
-        ("comparable", 0.01, -0.04, 0.04, "reproduced"),
-        ("comparable", 0.20, 0.10, 0.30, "contradicted"),
-        ("comparable", 0.05, -0.02, 0.12, "inconclusive"),
-    ],
-)
-def test_verdicts_follow_the_interval_and_the_claimed_direction(expect, effect, low, high, verdict):
-    assert claims.verdict(expect, effect, low, high, 8).startswith(verdict)
-
-
-def test_an_inconclusive_verdict_states_the_runs_that_would_decide_it():
-    # half-width 0.1 against an effect of 0.05: the interval must shrink 2x, so 4x the runs
-    assert claims.verdict("better", 0.05, -0.05, 0.15, 8) == (
-        "inconclusive: about 32 runs per line would decide it"
-    )
-    assert "would not decide it" in claims.verdict("better", 0.0, -0.1, 0.1, 8)
-
-
-def test_the_interval_is_scipys_paired_bca_bootstrap_of_the_mean():
-    rng = np.random.default_rng(1)
-    differences = rng.normal(0.3, 0.1, size=200)
-    low, high = claims.interval(differences)
-    assert low < differences.mean() < high
-    half = 1.96 * differences.std(ddof=1) / np.sqrt(len(differences))
-    assert high - low == pytest.approx(2 * half, rel=0.15)  # the normal interval, large n
-    assert claims.interval(np.full(5, 0.2)) == (0.2, 0.2)
 
 
 def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkeypatch):

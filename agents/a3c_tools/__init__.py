@@ -8,6 +8,9 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
   (its figures are data: thesis_figures.toml);
 - `thesis_claims`: the claims page (docs/claims.md) from the committed results
   (thesis_claims.toml);
+- `compare`: two scripts, or one with two flag sets, at the same learning rates and run seeds:
+  the paired effect, its 95% interval, a verdict and a figure (docs/testing-your-idea.md); it
+  and `thesis_claims` share `paired` (the pairing, the bootstrap interval, the verdict rule);
 - `future_work_summary`, `future_work_initial_policy`, `future_work_trained_scale`,
   `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch);
 - `training_scalars`: a run's TensorBoard training scalars by 1M steps.

@@ -233,13 +233,9 @@ def script_flags(script: Path) -> dict[str, str] | None:
     Args dataclass read as tyro turns it into flags: field learning_rate is --learning-rate or
     --learning_rate, a bool field also has --no-x. Any other script (an argparse one, such as
     the tests' fake agent) is run with --help, and every --flag its help text names counts."""
-    if _importable_agent(script):
-        with contextlib.suppress(Exception):  # it cannot be imported: ask its --help instead
-            module = load_script(script)
-            # load_script keeps one module per file name: make sure it is this file
-            same = Path(getattr(module, "__file__", "")).resolve() == script.resolve()
-            if same and dataclasses.is_dataclass(getattr(module, "Args", None)):
-                return _dataclass_flags(module.Args)
+    args_type = agent_args(script)
+    if args_type is not None:
+        return _dataclass_flags(args_type)
     try:
         result = subprocess.run(
             [sys.executable, str(script), "--help"],
@@ -256,6 +252,21 @@ def script_flags(script: Path) -> dict[str, str] | None:
     if result.returncode != 0 or not names - {"help"}:
         return None
     return {name: name for name in names}
+
+
+def agent_args(script: Path) -> type | None:
+    """The Args dataclass of an agent script (one that defines Args at its top level and runs
+    only under a `__main__` guard, loaded as a module), or None for any other script, one that
+    cannot be imported, or one whose file name another loaded script already has."""
+    if not _importable_agent(script):
+        return None
+    with contextlib.suppress(Exception):  # it cannot be imported
+        module = load_script(script)
+        # load_script keeps one module per file name: make sure it is this file
+        same = Path(getattr(module, "__file__", "")).resolve() == script.resolve()
+        if same and dataclasses.is_dataclass(getattr(module, "Args", None)):
+            return module.Args
+    return None
 
 
 def _importable_agent(script: Path) -> bool:
@@ -294,17 +305,21 @@ def _dataclass_flags(args_type: type) -> dict[str, str]:
 
 
 def check_flags(
-    script: Path, samples: list[Sample], fixed: list[str], total_timesteps: int | None
+    script: Path,
+    samples: list[Sample],
+    fixed: list[str],
+    total_timesteps: int | None,
+    fixed_from: str = "after `--`",
 ) -> None:
-    """UsageError for the first sampled, fixed (after `--`) or sweep-passed flag that the
-    script does not have, naming the nearest one it has. A script whose flags cannot be told
-    is not checked (a note says so)."""
+    """UsageError for the first sampled, fixed (after `--`, or where fixed_from says) or
+    sweep-passed flag that the script does not have, naming the nearest one it has. A script
+    whose flags cannot be told is not checked (a note says so)."""
     flags = script_flags(script)
     if flags is None:
         print(f"note: {script.name}'s flags are unknown (its --help failed); not checked")
         return
     given = [(f"--sample {sample.name}", sample.name) for sample in samples]
-    given += [("after `--`", t[2:].split("=", 1)[0]) for t in fixed if t.startswith("--")]
+    given += [(fixed_from, t[2:].split("=", 1)[0]) for t in fixed if t.startswith("--")]
     for where, name in given:
         if name and name not in flags:
             raise UsageError(f"{where}: {script.name} has no flag --{name}; {_hint(name, flags)}")
@@ -581,17 +596,29 @@ def check_config(out: Path, config: dict) -> None:
     with the folder's lock held, so that two sweeps never both find it missing."""
     path = out / CONFIG_NAME
     if path.exists():
-        stored = json.loads(path.read_text())
-        differ = [key for key in config if stored.get(key) != config[key]]
-        if differ:
-            details = "; ".join(f"{k}: {stored.get(k)!r} there, {config[k]!r} now" for k in differ)
-            raise UsageError(
-                f"{out} holds a sweep with another configuration ({details}); "
-                "use another --out, or the same arguments to resume it"
-            )
+        mismatch = config_mismatch(out, config)
+        if mismatch:
+            raise UsageError(mismatch)
         return
     out.mkdir(parents=True, exist_ok=True)
     _write_atomically(path, json.dumps(config, indent=2) + "\n")
+
+
+def config_mismatch(out: Path, config: dict) -> str | None:
+    """Why out cannot hold a sweep of this configuration (its sweep.json holds another), or
+    None (the same one, or none yet). It only reads: a check before anything is created."""
+    path = out / CONFIG_NAME
+    if not path.exists():
+        return None
+    stored = json.loads(path.read_text())
+    differ = [key for key in config if stored.get(key) != config[key]]
+    if not differ:
+        return None
+    details = "; ".join(f"{k}: {stored.get(k)!r} there, {config[k]!r} now" for k in differ)
+    return (
+        f"{out} holds a sweep with another configuration ({details}); "
+        "use another --out, or the same arguments to resume it"
+    )
 
 
 LOCK_NAME = "sweep.lock"
@@ -932,14 +959,7 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
     check_flags(Path(args.script), samples, fixed, args.total_timesteps)
     if args.backend == "ray" and importlib.util.find_spec("ray") is None:
         raise UsageError(RAY_MISSING)
-    config = {
-        "script": Path(args.script).name,
-        "samples": [s.spec() for s in samples],
-        "fixed_flags": fixed,
-        "total_timesteps": args.total_timesteps,
-        "seed": args.seed,
-        "score": f"mean of the final {SCORE_LAST} evaluations",
-    }
+    config = configuration(args, fixed)
     runs = plan_runs(config, args.runs)
     out = Path(args.out)
     if args.dry_run:
@@ -949,6 +969,18 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
     with lock_folder(out):  # first: nothing in the folder is read or written without it
         check_config(out, config)
         return run_sweep(args, out, runs, names)
+
+
+def configuration(args: argparse.Namespace, fixed: list[str]) -> dict:
+    """The sweep's configuration, as OUT/sweep.json holds it: what its runs depend on."""
+    return {
+        "script": Path(args.script).name,
+        "samples": [parse_sample(s).spec() for s in args.sample],
+        "fixed_flags": fixed,
+        "total_timesteps": args.total_timesteps,
+        "seed": args.seed,
+        "score": f"mean of the final {SCORE_LAST} evaluations",
+    }
 
 
 def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[str]) -> int:
