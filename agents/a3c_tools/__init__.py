@@ -13,9 +13,12 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
   and `thesis_claims` share `paired` (the pairing, the bootstrap interval, the verdict rule);
 - `future_work_summary`, `future_work_initial_policy`, `future_work_trained_scale`,
   `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch);
-- `training_scalars`: a run's TensorBoard training scalars by 1M steps.
+- `training_scalars`: a run's TensorBoard training scalars by 1M steps;
+- `atari_report`: the Atari lines across seeds and games with rliable (the IQM with stratified
+  bootstrap intervals, a performance profile; its lines are data: atari_report.toml).
 
-Nothing runs at import; the tools' own dependencies (matplotlib, scipy) are the `tools` extra.
+Nothing runs at import; the tools' own dependencies (matplotlib, scipy, rliable) are the `tools`
+extra.
 """
 
 from __future__ import annotations
