@@ -98,24 +98,26 @@ def test_sample_actions_follow_the_probabilities(a3c):
     assert counts[1, 1] == 0
 
 
-def test_lstm_episode_starts_restart_each_env_from_the_zero_state():
-    """A replay over two envs where env 0's episode starts anew at step 2 gives, for env 0 from
-    step 2 on, what a fresh replay of those steps from zeros gives, and leaves env 1 alone."""
+@pytest.mark.parametrize("start", [1, 2])  # 1: the rollout's second step
+def test_lstm_episode_starts_restart_each_env_from_the_zero_state(start):
+    """A replay over two envs where env 0's episode starts anew at step `start` gives, for env 0
+    from that step on, what a fresh replay of those steps from zeros gives, and leaves env 1
+    alone."""
     lstm = load_script("a3c_lstm")
     torch.manual_seed(3)
     net = lstm.ActorCritic(3, lstm.Args())
     obs = torch.randint(0, 256, (4, 2, 4, 84, 84), dtype=torch.uint8)
-    start = (torch.randn(2, 256), torch.randn(2, 256))
+    state = (torch.randn(2, 256), torch.randn(2, 256))
     starts = torch.zeros(4, 2, dtype=torch.bool)
-    starts[2, 0] = True
-    log_probs, values, _ = net(obs, start, starts)
-    fresh_log_probs, fresh_values, _ = net(obs[2:, :1], net.initial_state(1))
-    torch.testing.assert_close(log_probs[2:, 0], fresh_log_probs[:, 0], rtol=1e-4, atol=1e-5)
-    torch.testing.assert_close(values[2:, 0], fresh_values[:, 0], rtol=1e-4, atol=1e-5)
-    plain_log_probs, _, _ = net(obs, start)
+    starts[start, 0] = True
+    log_probs, values, _ = net(obs, state, starts)
+    fresh_log_probs, fresh_values, _ = net(obs[start:, :1], net.initial_state(1))
+    torch.testing.assert_close(log_probs[start:, 0], fresh_log_probs[:, 0], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(values[start:, 0], fresh_values[:, 0], rtol=1e-4, atol=1e-5)
+    plain_log_probs, _, _ = net(obs, state)
     torch.testing.assert_close(log_probs[:, 1], plain_log_probs[:, 1])  # env 1 unchanged
-    torch.testing.assert_close(log_probs[:2, 0], plain_log_probs[:2, 0])  # before the start
-    assert not torch.allclose(log_probs[2:, 0], plain_log_probs[2:, 0])
+    torch.testing.assert_close(log_probs[:start, 0], plain_log_probs[:start, 0])  # before it
+    assert not torch.allclose(log_probs[start:, 0], plain_log_probs[start:, 0])
 
 
 @pytest.mark.parametrize("name", SCRIPTS)

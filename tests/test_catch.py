@@ -129,6 +129,16 @@ def test_paddle_moves_two_cells_and_never_leaves_the_grid():
     assert rules.move_paddle(4, -1) == 2 and rules.move_paddle(19, 1) == 21
 
 
+def test_start_states_are_uniform_over_their_ranges():
+    """The three U[0, 1) draws, evenly spread: every ball column 0..23, every speed -2..2 and
+    every paddle centre 2..21 comes up equally often."""
+    u = (np.arange(24 * 5 * 20) + 0.5) / (24 * 5 * 20)
+    ball_col, ball_vx, paddle = CatchRules().start_state(np.stack([u, u, u], axis=-1))
+    assert np.bincount(ball_col).tolist() == [100] * 24
+    assert np.bincount(ball_vx + 2).tolist() == [480] * 5
+    assert np.bincount(paddle).tolist() == [0, 0] + [120] * 20
+
+
 def test_pixels_are_the_grid_upscaled_crisply():
     pixel_env, grid_env = CatchEnv(), CatchEnv(obs_type="grid")
     for seed in range(5):
@@ -309,6 +319,25 @@ def test_vector_env_equals_sync_vector_env_of_single_envs(obs_type):
             np.testing.assert_array_equal(got, expected)
     # An unseeded reset continues every env's own generator, as N single envs would.
     np.testing.assert_array_equal(vector.reset()[0], sync.reset()[0])
+
+
+def test_vector_env_rewards_only_the_games_that_end():
+    """Games at different rows (reset at different steps): a step rewards 1 exactly where a game
+    ends with its ball within paddle_width // 2 of the paddle's centre, never a game whose ball
+    is over the paddle higher up."""
+    envs = CatchVectorEnv(num_envs=8, obs_type="grid")
+    envs.reset(seed=0)
+    rng = np.random.default_rng(0)
+    over_the_paddle_early = 0
+    for step in range(1, 60):
+        if step < 8:  # game i starts at step i
+            envs.reset(options={"reset_mask": np.arange(8) == step})
+        _, rewards, terminated, _, _ = envs.step(rng.integers(0, 3, 8))
+        over = np.abs(envs.ball_col - envs.paddle) <= 2
+        np.testing.assert_array_equal(rewards, (terminated & over).astype(np.float32))
+        if terminated.any():
+            over_the_paddle_early += int((over & ~terminated).sum())
+    assert over_the_paddle_early > 0  # the case this test is about came up
 
 
 def test_vector_env_copy_false_returns_its_buffer():

@@ -36,6 +36,17 @@ def test_clip_gradients_modes():
     np.testing.assert_allclose(torch.cat(g).numpy(), [30.0, 40.0, 3.0, -50.0])
 
 
+def test_norm_clipping_scales_only_the_tensors_over_the_bound():
+    under, over = torch.tensor([3.0, 4.0]), torch.tensor([0.0, 80.0])  # norms 5 and 80
+    grads = [under.clone(), over.clone()]
+    runtime.clip_gradients(grads, "norm", 40.0)
+    np.testing.assert_allclose(grads[0].numpy(), [3.0, 4.0])  # not scaled up to norm 40
+    np.testing.assert_allclose(grads[1].numpy(), [0.0, 40.0], rtol=1e-5)
+    grads = [under.clone(), under.clone() * 2]  # global norm sqrt(125) < 25: unchanged
+    runtime.clip_gradients(grads, "global-norm", 25.0)
+    np.testing.assert_allclose(torch.cat(grads).numpy(), [3.0, 4.0, 6.0, 8.0])
+
+
 def test_shared_rmsprop_step():
     param = torch.tensor([1.0, -1.0])
     opt = runtime.SharedRMSprop([param], decay=0.99, eps=0.1)

@@ -51,6 +51,19 @@ def test_a_flag_that_keeps_the_experiment_applies_and_is_announced(trained, caps
     assert out == "total_timesteps 300,000 -> 1,000,000\n"  # num_workers was 1 already
 
 
+@pytest.mark.parametrize(
+    ("flag", "value"),
+    [("learning_rate", 0.5), ("t_max", 20), ("seed", 1), ("env", "BreakoutNoFrameskip-v4")],
+)
+def test_resumed_args_refuses_each_flag_that_changes_the_experiment(trained, flag, value):
+    """The rule itself, before the command line's test below (which, were the flag let through,
+    would train on for the checkpoint's 300,000 steps)."""
+    module, checkpoint, path = trained
+    args = module.Args(resume=str(path), **{flag: value})
+    with pytest.raises(runtime.UsageError, match="differs from the run's"):
+        resumed_args(module.AGENT, checkpoint, args, {"resume", flag})
+
+
 @pytest.mark.parametrize("flags", [["--learning-rate", "0.5"], ["--t-max", "20"], ["--seed", "1"]])
 def test_a_flag_that_changes_the_experiment_is_refused_in_one_line(
     trained, flags, monkeypatch, capsys

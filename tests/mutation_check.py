@@ -1,0 +1,501 @@
+"""Mutation check: does the fast test tier catch a broken algorithm or game?
+
+Each mutant in MUTANTS replaces one exact snippet of source (in every file it names: the copies
+of shared code in every agent script at once, so that the drift test alone cannot catch it) with
+a plausible bug. For each, this script applies it to a scratch copy of the tree, runs the fast
+tier there (`pytest -x -m "not slow"`, the test files most likely to catch it first) and records
+whether a test fails, which test failed first, and how long it took. A mutant must be ruff clean
+(so that tests/test_repo.py's ruff test cannot be what catches it), and its snippet must occur
+exactly once in each file it names (else the list has rotted: the script stops, exit 2).
+
+    python tests/mutation_check.py [--only ID ...] [--out results/mutation_check/output.txt]
+
+Exit 0 when every mutant is caught, 1 when some survive, 2 when the list or the unmutated tree's
+fast tier is broken. Not collected by pytest (its name does not start with test_).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class Mutant(NamedTuple):
+    id: str
+    breaks: str  # what it breaks, in words
+    files: tuple[str, ...]  # each gets the same replacement
+    original: str  # occurs exactly once in each file
+    replacement: str
+    first: tuple[str, ...] = ()  # test files to run first (then the others, by name)
+
+
+def scripts(*names: str) -> tuple[str, ...]:
+    return tuple(f"agents/{name}.py" for name in names)
+
+
+THESIS = scripts("a3c_ff", "a3c_lws", "a3c_ss", "a3c_ww", "a3c_lstm", "a3c_lpq", "a3c_glpq")
+IDEAS = ("value_head", "data_init", "growth")  # chapter 8's ideas on LPQ and on GLPQ
+FUTURE = scripts(
+    *(f"future_work/a3c_{head}_{idea}" for head in ("lpq", "glpq") for idea in IDEAS),
+    "future_work/a3c_lws_online",
+)
+ALL = THESIS + FUTURE  # every copy of a3c_ff.py's shared code
+NOT_LSTM = tuple(f for f in ALL if f != "agents/a3c_lstm.py")  # the LSTM's own lines differ
+LPQ = scripts("a3c_lpq", *(f"future_work/a3c_lpq_{idea}" for idea in IDEAS))
+GLPQ = scripts("a3c_glpq", *(f"future_work/a3c_glpq_{idea}" for idea in IDEAS))
+GLPQ_NOT_GROWTH = GLPQ[:3]  # growth's glpq_log_policy has its own form (free slots)
+LWS = scripts("a3c_lws", "future_work/a3c_lws_online")
+HOGWILD = ("agents/a3c_runtime/hogwild.py",)
+CHECKPOINTS = ("agents/a3c_runtime/checkpoints.py",)
+RESUME = ("agents/a3c_runtime/resume.py",)
+CATCH = ("catch_env/catch.py",)
+WRAPPERS = ("catch_env/wrappers.py",)
+
+# the test files to run first
+UNITS = "tests/test_a3c_units.py"  # the loss
+BATCHED = "tests/test_batched_actors.py"  # the n-step returns, sampling, the LSTM's resets
+WORKERS = "tests/test_workers.py"  # the worker loop
+OPTIM = "tests/test_runtime_hogwild.py"
+CKPT = "tests/test_runtime_checkpoints.py"
+RES = "tests/test_runtime_resume.py"
+PROTO = "tests/test_prototype_policies.py"
+ARCH = "tests/test_variants_arch.py"
+CATCH_T = "tests/test_catch.py"
+WRAP_T = "tests/test_wrappers.py"
+
+# fmt: off
+MUTANTS = [
+    # --- the A3C loss and the n-step returns (a3c_ff.py, and every copy) ---------------------
+    Mutant("advantage-not-detached", "the policy gradient back-propagates into the critic "
+           "through the advantage", ALL,
+           "* advantages.detach()).sum()", "* advantages).sum()", (UNITS,)),
+    Mutant("entropy-sign", "the entropy bonus becomes a penalty (beta's sign)", ALL,
+           "return policy_loss - ent_coef * entropy + vf_coef * value_loss",
+           "return policy_loss + ent_coef * entropy + vf_coef * value_loss", (UNITS,)),
+    Mutant("lambda-v-ignored", "the value loss factor lambda_V (--vf-coef) is not applied", ALL,
+           "return policy_loss - ent_coef * entropy + vf_coef * value_loss",
+           "return policy_loss - ent_coef * entropy + value_loss", (UNITS,)),
+    Mutant("value-loss-half", "the value loss loses its 1/2: (G - V)^2", ALL,
+           "value_loss = 0.5 * advantages.pow(2).sum()", "value_loss = advantages.pow(2).sum()",
+           (UNITS,)),
+    Mutant("gamma-squared", "each n-step return discounts by gamma^2 per step", ALL,
+           "g = rewards[t] + gamma * np.where(", "g = rewards[t] + gamma**2 * np.where(",
+           (BATCHED,)),
+    Mutant("returns-cross-episodes", "a return flows back across an episode's end (terminal "
+           "or truncated)", ALL,
+           "g = rewards[t] + gamma * np.where(dones[t], done_values[t], g)",
+           "g = rewards[t] + gamma * g", (BATCHED,)),
+    Mutant("no-bootstrap", "the n-step return starts from 0, not V(s_n), at a rollout's end",
+           ALL, "    g = bootstrap_values\n", "    g = np.zeros_like(bootstrap_values)\n",
+           (BATCHED,)),
+    # --- the worker (Algorithm 1) ------------------------------------------------------------
+    Mutant("gamma-flag-ignored", "the worker discounts with the default gamma (Args.gamma), "
+           "not --gamma's", ALL,
+           "rewards[:n], dones[:n], done_values[:n], bootstrap_values, args.gamma",
+           "rewards[:n], dones[:n], done_values[:n], bootstrap_values, Args.gamma", (WORKERS,)),
+    Mutant("terminal-as-truncation", "a terminal state bootstraps from V(s_last) like a time "
+           "limit", ALL, "cut = truncated & ~terminated", "cut = truncated | terminated",
+           (WORKERS,)),
+    Mutant("truncation-as-terminal", "a time limit bootstraps from 0 like a terminal state",
+           NOT_LSTM, "done_values[t, cut] = model(last_obs)[1].float().numpy()",
+           "done_values[t, cut] = 0.0 * model(last_obs)[1].float().numpy()", (WORKERS,)),
+    Mutant("bootstrap-from-first-state", "the n-step bootstrap takes V(s_0), not V(s_n)", ALL,
+           "bootstrap_values = values[n * num_envs :].detach()",
+           "bootstrap_values = values[:num_envs].detach()", (WORKERS,)),
+    Mutant("theta-not-synced", "theta' is never synced from theta: each worker acts and "
+           "learns with its own initial network", ALL,
+           "torch._foreach_copy_(params, shared.params)  # theta' <- theta",
+           "torch._foreach_copy_(params, params)  # theta' <- theta", (WORKERS,)),
+    Mutant("sample-zero-probability", "sampling can draw an action of probability 0", ALL,
+           "cdf <= uniforms[:, None] * cdf[:, -1:]", "cdf < uniforms[:, None] * cdf[:, -1:]",
+           (BATCHED,)),
+    Mutant("act-without-randomness", "the workers act with u = 0: always the first action "
+           "of nonzero probability, not a sample of pi", ALL,
+           "sample_actions(log_probs.float().exp().numpy(), rng.random(num_envs))",
+           "sample_actions(log_probs.float().exp().numpy(), 0.0 * rng.random(num_envs))",
+           (WORKERS,)),
+    Mutant("clip-a-copy", "the worker clips a copy of the gradients and applies the "
+           "unclipped ones", ALL,
+           "grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)",
+           "grad_norm = clip_gradients([g.clone() for g in grads], args.grad_clip_mode, "
+           "args.grad_clip)", (WORKERS,)),
+    Mutant("lr-not-annealed-in-worker", "the worker steps with the learning rate of step 0 "
+           "throughout", ALL,
+           "shared.optimizer.step(grads, annealed_lr(args, global_step))",
+           "shared.optimizer.step(grads, annealed_lr(args, 0))", (WORKERS,)),
+    # --- LSTM ----------------------------------------------------------------------------------
+    Mutant("lstm-acting-state-not-reset", "the LSTM carries its acting state into the next "
+           "episode", scripts("a3c_lstm"),
+           "continuing = torch.from_numpy(~ended)[:, None]",
+           "continuing = torch.from_numpy(ended | ~ended)[:, None]", (WORKERS, ARCH)),
+    Mutant("lstm-replay-start-at-step-1-ignored", "the LSTM's replay does not restart an "
+           "episode that starts at the rollout's second step", scripts("a3c_lstm"),
+           "if episode_starts is not None and t > 0:", "if episode_starts is not None and t > 1:",
+           (BATCHED, ARCH)),
+    Mutant("lstm-episode-starts-shifted", "the LSTM's replay restarts an episode one step "
+           "early (at the terminal state)", scripts("a3c_lstm"),
+           "episode_starts[1:] = torch.from_numpy(dones[:n])",
+           "episode_starts[:n] = torch.from_numpy(dones[:n])", (WORKERS, ARCH)),
+    # --- LPQ and GLPQ heads ------------------------------------------------------------------
+    Mutant("lpq-logit-sign", "LPQ's per-action logit adds the shift it should subtract", LPQ,
+           "sum(-1).log() - nearest.squeeze(-1)", "sum(-1).log() + nearest.squeeze(-1)",
+           (PROTO,)),
+    Mutant("lpq-farthest-compete", "LPQ's competition takes each action's k farthest "
+           "prototypes", LPQ,
+           "return distances.topk(k, dim=-1, largest=False, sorted=False).values",
+           "return distances.topk(k, dim=-1, largest=True, sorted=False).values", (PROTO,)),
+    Mutant("glpq-mu-sign", "GLPQ's mu = (d_- - d) / (d_- + d) has its sign flipped", GLPQ,
+           "return (d_minus - distances) / (d_minus + distances + MU_EPS)",
+           "return (distances - d_minus) / (d_minus + distances + MU_EPS)", (PROTO,)),
+    Mutant("glpq-temperature-ignored", "GLPQ's logits drop the temperature tau", GLPQ_NOT_GROWTH,
+           "per_action = torch.exp(tau * (scores - 1.0)).sum(-1).log()",
+           "per_action = torch.exp(scores - 1.0).sum(-1).log()", (PROTO,)),
+    Mutant("glpq-farthest-compete", "GLPQ's competition takes each action's k farthest "
+           "prototypes", GLPQ_NOT_GROWTH,
+           "nearest = distances.topk(k, dim=-1, largest=False, sorted=False).indices",
+           "nearest = distances.topk(k, dim=-1, largest=True, sorted=False).indices", (PROTO,)),
+    Mutant("glpq-tau-schedule-reversed", "the tau schedule runs from p_end to p_start", GLPQ,
+           "p = self.p_start + (self.p_end - self.p_start) * self.progress",
+           "p = self.p_end + (self.p_start - self.p_end) * self.progress", (PROTO,)),
+    Mutant("glpq-scheduled-tau-doubled", "tau = ln(p (n - 1) / (1 - p)) without the 1/2 of "
+           "eqs. 7.17-7.18", GLPQ,
+           "return 0.5 * math.log(p * (n - 1) / (1 - p))",
+           "return math.log(p * (n - 1) / (1 - p))", (PROTO,)),
+    Mutant("glpq-loss-times-tau", "the policy loss is multiplied by tau instead of 1/tau",
+           GLPQ, "return 1.0 / float(self.tau())", "return float(self.tau())", (PROTO,)),
+    Mutant("glpq-progress-not-set", "the worker never tells the network the training "
+           "progress: tau stays at its schedule's start", GLPQ,
+           "model.set_progress(global_step / args.total_timesteps)  # GLPQ",
+           "model.set_progress(0.0)  # GLPQ", (PROTO, WORKERS)),
+    # --- LWS, SS, WW -------------------------------------------------------------------------
+    Mutant("lws-similarity-sign", "LWS weights each kernel by exp(+d): the farthest centroid "
+           "wins", LWS, "return torch.softmax(-distance, dim=-2)",
+           "return torch.softmax(distance, dim=-2)", (ARCH,)),
+    Mutant("lws-rows-cols-swapped", "LWS reads a centroid's (row, column) as (column, row)",
+           scripts("a3c_lws"), "centroid_rows, centroid_cols = self.centroids.unbind(-1)",
+           "centroid_cols, centroid_rows = self.centroids.unbind(-1)", (ARCH,)),
+    Mutant("ss-coordinates-transposed", "the spatial softmax's x and y coordinates are "
+           "swapped", scripts("a3c_ss"), 'indexing="xy")', 'indexing="ij")', (ARCH,)),
+    Mutant("ss-temperature-multiplies", "the spatial softmax multiplies by its temperature "
+           "instead of dividing", scripts("a3c_ss"), "features.flatten(2) / self.temperature",
+           "features.flatten(2) * self.temperature", (ARCH,)),
+    Mutant("ww-coordinates-range", "WW's spatial softmax coordinates span [0, 1], not "
+           "[-0.5, 0.5]", scripts("a3c_ww"), "axis = torch.linspace(-0.5, 0.5, size)",
+           "axis = torch.linspace(0.0, 1.0, size)", (ARCH,)),
+    # --- the shared optimizers, clipping, the learning rate (hogwild.py) ----------------------
+    Mutant("rmsprop-eps-outside-root", "RMSprop divides by sqrt(ms) + eps, not sqrt(ms + eps)",
+           HOGWILD,
+           "        inv_rms = torch._foreach_add(self.square_avg, self.eps)\n"
+           "        torch._foreach_pow_(inv_rms, -0.5)\n",
+           "        inv_rms = torch._foreach_sqrt(self.square_avg)\n"
+           "        torch._foreach_add_(inv_rms, self.eps)\n"
+           "        torch._foreach_reciprocal_(inv_rms)\n", (OPTIM,)),
+    Mutant("rmsprop-decay-swapped", "RMSprop adds rho * g^2 to the mean square instead of "
+           "(1 - rho) * g^2", HOGWILD,
+           "grads, grads, value=1.0 - self.decay)", "grads, grads, value=self.decay)", (OPTIM,)),
+    Mutant("adam-no-bias-correction", "Adam's first moment is not bias-corrected", HOGWILD,
+           "        torch._foreach_addcmul_(\n"
+           "            self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)\n"
+           "        )\n",
+           "        torch._foreach_addcmul_(self.params, self.exp_avg, inv_rms, value=-lr)\n",
+           (OPTIM,)),
+    Mutant("adam-no-second-bias-correction", "Adam's second moment is not bias-corrected",
+           HOGWILD, "torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)",
+           "torch._foreach_div(self.exp_avg_sq, 1.0)", (OPTIM,)),
+    Mutant("clip-norm-scales-up", "per-tensor norm clipping also scales up the tensors "
+           "under the bound", HOGWILD, "(bound / (norms + 1e-6)).clamp_(max=1.0).unbind()",
+           "(bound / (norms + 1e-6)).unbind()", (OPTIM,)),
+    Mutant("clip-global-norm-is-a-sum", "the global gradient norm is the sum of the tensors' "
+           "norms", HOGWILD, "global_norm = torch.linalg.vector_norm(norms)",
+           "global_norm = norms.sum()", (OPTIM,)),
+    Mutant("lr-not-clamped", "the annealed learning rate goes negative after T_max",
+           HOGWILD, "max(0.0, 1.0 - global_step / args.total_timesteps)",
+           "(1.0 - global_step / args.total_timesteps)", (OPTIM,)),
+    # --- checkpoints and --resume ------------------------------------------------------------
+    Mutant("checkpoint-rmsprop-stats-zeroed", "a checkpoint holds zeros for RMSprop's mean "
+           "square", HOGWILD, 'return {"square_avg": [s.clone() for s in self.square_avg]}',
+           'return {"square_avg": [torch.zeros_like(s) for s in self.square_avg]}',
+           (CKPT, RES)),
+    Mutant("checkpoint-adam-step-zeroed", "a checkpoint holds 0 for Adam's step count",
+           HOGWILD, '"step_count": self.step_count.clone(),',
+           '"step_count": torch.zeros_like(self.step_count),', (CKPT, RES)),
+    Mutant("resume-optimizer-not-restored", "--resume keeps fresh optimizer statistics, not "
+           "the checkpoint's", CHECKPOINTS,
+           'shared.optimizer.load_state_dict(checkpoint["optimizer"])',
+           "shared.optimizer.load_state_dict(shared.optimizer.state_dict())", (CKPT, RES)),
+    Mutant("resume-global-step-reset", "--resume starts again from global step 0", CHECKPOINTS,
+           'shared.base_step[0] = checkpoint["global_step"]', "shared.base_step[0] = 0",
+           (CKPT, RES)),
+    Mutant("resume-accepts-changed-flag", "--resume silently ignores a changed flag that "
+           "changes the experiment", RESUME,
+           "for name in sorted(given - set(COMMAND_LINE_ONLY)):",
+           "for name in sorted(given & set(RESUMABLE)):", (RES,)),
+    # --- Catch (catch.py) --------------------------------------------------------------------
+    Mutant("catch-wall-clamps", "the ball stops at a wall instead of reflecting", CATCH,
+           "col = col - 2 * (col - (self.grid_size - 1)) * right - 2 * col * left",
+           "col = col - (col - (self.grid_size - 1)) * right - col * left", (CATCH_T,)),
+    Mutant("catch-left-wall-keeps-speed", "a bounce off the left wall keeps the ball's "
+           "speed", CATCH, "return col, vx - 2 * vx * (right | left)",
+           "return col, vx - 2 * vx * right", (CATCH_T,)),
+    Mutant("catch-paddle-short-of-right-edge", "the paddle cannot reach its rightmost "
+           "position", CATCH, "(target >= self.paddle_min) & (target <= self.paddle_max)",
+           "(target >= self.paddle_min) & (target < self.paddle_max)", (CATCH_T,)),
+    Mutant("catch-paddle-off-grid", "the paddle's centre may go to the grid's edge, half "
+           "the paddle off the grid", CATCH,
+           "(target >= self.paddle_min) & (target <= self.paddle_max)",
+           "(target >= 0) & (target <= self.grid_size - 1)", (CATCH_T,)),
+    Mutant("catch-narrow-catch", "a ball on the paddle's outer cells is not caught", CATCH,
+           "return abs(ball_col - paddle) <= self.paddle_half",
+           "return abs(ball_col - paddle) < self.paddle_half", (CATCH_T,)),
+    Mutant("catch-ball-speed-range", "the ball's start speed is never +2", CATCH,
+           "(u[..., 1] * (2 * MAX_BALL_SPEED + 1))", "(u[..., 1] * (2 * MAX_BALL_SPEED))",
+           (CATCH_T,)),
+    Mutant("catch-vector-reward-unguarded", "the vector env rewards a game whose ball is over "
+           "the paddle before it reaches the paddle's row", CATCH,
+           "rewards[terminated & self.rules.caught(self.ball_col, self.paddle)] = 1.0",
+           "rewards[self.rules.caught(self.ball_col, self.paddle)] = 1.0", (CATCH_T,)),
+    # --- the thesis's preprocessing (wrappers.py) ---------------------------------------------
+    Mutant("atari-native-no-maxpool", "the native ALE env's frames are not max-pooled over "
+           "the last two", WRAPPERS, "            frameskip=4,\n",
+           "            frameskip=4,\n            maxpool=False,\n", (WRAP_T,)),
+    Mutant("atari-native-clip-drops-negative", "the native env clips rewards to [0, 1]",
+           WRAPPERS, "rewards = np.clip(rewards, -1.0, 1.0)",
+           "rewards = np.clip(rewards, 0.0, 1.0)", (WRAP_T,)),
+    Mutant("atari-clip-drops-negative", "make_env clips rewards to [0, 1]", WRAPPERS,
+           "env = ClipReward(env, -1.0, 1.0)", "env = ClipReward(env, 0.0, 1.0)", (WRAP_T,)),
+    Mutant("catch-stack-leaks-across-episodes", "Catch's frame stack keeps the last "
+           "episode's frames after an autoreset", WRAPPERS,
+           "self._stack[ended] = obs[ended][:, None]", "self._stack[ended, -1] = obs[ended]",
+           (WRAP_T,)),
+    Mutant("atari-native-stack-leaks-across-episodes", "the native env's frame stack keeps "
+           "the last episode's frames after an autoreset", WRAPPERS,
+           "self._stack[ended] = obs[ended]  # the next", "self._stack[ended, -1] = obs[ended, 0]"
+           "  # the next", (WRAP_T,)),
+]
+# fmt: on
+
+
+def check_list(mutants: list[Mutant]) -> list[str]:
+    """What is wrong with the list: a duplicate id, a snippet not exactly once in a file."""
+    problems, seen = [], set()
+    for m in mutants:
+        if m.id in seen:
+            problems.append(f"{m.id}: duplicate id")
+        seen.add(m.id)
+        if m.original == m.replacement:
+            problems.append(f"{m.id}: the replacement is the original")
+        for path in m.files:
+            count = (ROOT / path).read_text().count(m.original)
+            if count != 1:
+                problems.append(f"{m.id}: {path} holds the snippet {count} times, not once")
+        for path in m.first:
+            if not (ROOT / path).is_file():
+                problems.append(f"{m.id}: no test file {path}")
+    return problems
+
+
+def tree_files() -> list[str]:
+    """The working tree's files that git tracks or would (not ignored)."""
+    out = subprocess.run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        cwd=ROOT,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    return [f for f in out.split("\0") if f and (ROOT / f).is_file()]
+
+
+def make_scratch() -> Path:
+    """A copy of the tree (no .git, runs/, caches): sources copied, results/ hard-linked (the
+    tests only read it, and no mutant touches it)."""
+    scratch = Path(tempfile.mkdtemp(prefix="mutation_check_"))
+    for f in tree_files():
+        target = scratch / f
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if f.startswith("results/"):
+            try:
+                os.link(ROOT / f, target)
+                continue
+            except OSError:
+                pass
+        shutil.copy2(ROOT / f, target)
+    return scratch
+
+
+def run_pytest(scratch: Path, first: tuple[str, ...], timeout: float) -> tuple[str, str, float]:
+    """(status, the first failing test or '', seconds): status caught, survived or timeout."""
+    # each test file named: pytest folds a file into a folder given with it, losing the order
+    rest = sorted(p.relative_to(scratch).as_posix() for p in (scratch / "tests").glob("test_*.py"))
+    command = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m",
+               "not slow", *first, *(f for f in rest if f not in first)]  # fmt: skip
+    env = pytest_env(scratch)
+    start = time.monotonic()
+    process = subprocess.Popen(
+        command,
+        cwd=scratch,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        output, _ = process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)  # pytest and the processes its tests started
+        process.communicate()
+        return "timeout", "", time.monotonic() - start
+    seconds = time.monotonic() - start
+    if process.returncode == 0:
+        return "survived", "", seconds
+    failed = re.search(r"^(?:FAILED|ERROR) (\S+)", output, re.MULTILINE)
+    if failed is None:
+        tail = "\n".join(output.strip().splitlines()[-15:])
+        return "error", f"pytest exit {process.returncode}, no failing test: {tail}", seconds
+    return "caught", failed.group(1), seconds
+
+
+def pytest_env(scratch: Path) -> dict[str, str]:
+    """The environment of the copy's tests: its packages first on the path."""
+    env = {**os.environ, "PYTHONPATH": f"{scratch / 'agents'}{os.pathsep}{scratch}"}
+    env.pop("PYTEST_ADDOPTS", None)
+    return env
+
+
+def imports_from(scratch: Path) -> str:
+    """'' if the copy's python imports a3c_runtime and catch_env from the copy (not from an
+    editable install elsewhere), else where it imports them from."""
+    code = "import a3c_runtime, catch_env; print(a3c_runtime.__file__); print(catch_env.__file__)"
+    result = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=scratch,
+        env=pytest_env(scratch),
+        capture_output=True,
+        text=True,
+    )
+    paths = result.stdout.split()
+    if result.returncode != 0 or len(paths) != 2:
+        return result.stderr.strip() or "python failed"
+    outside = [p for p in paths if not Path(p).resolve().is_relative_to(scratch.resolve())]
+    return ", ".join(outside)
+
+
+def ruff_problems(scratch: Path, files: tuple[str, ...]) -> str:
+    """ruff's complaints about the mutated files ('' when clean)."""
+    problems = []
+    for command in (["ruff", "check", "-q", *files], ["ruff", "format", "--check", "-q", *files]):
+        result = subprocess.run(command, cwd=scratch, capture_output=True, text=True)
+        if result.returncode != 0:
+            problems.append((result.stdout + result.stderr).strip() or " ".join(command))
+    return "; ".join(problems)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", nargs="+", metavar="ID", help="run only these mutants")
+    parser.add_argument("--out", help="also write the report to this file")
+    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per mutant")
+    parser.add_argument("--list", action="store_true", help="print the mutants and exit")
+    parser.add_argument(
+        "--lint-only", action="store_true", help="apply each mutant and run only ruff on it"
+    )
+    args = parser.parse_args()
+
+    problems = check_list(MUTANTS)
+    if problems:
+        print("the mutant list is out of date:\n  " + "\n  ".join(problems), file=sys.stderr)
+        return 2
+    mutants = MUTANTS
+    if args.only:
+        unknown = sorted(set(args.only) - {m.id for m in MUTANTS})
+        if unknown:
+            print(f"unknown mutant ids: {', '.join(unknown)}", file=sys.stderr)
+            return 2
+        mutants = [m for m in MUTANTS if m.id in args.only]
+    if args.list:
+        for m in mutants:
+            print(f"{m.id}: {m.breaks} [{', '.join(m.files)}]")
+        return 0
+
+    lines: list[str] = []
+
+    def report(line: str = "") -> None:
+        print(line, flush=True)
+        lines.append(line)
+
+    began = time.monotonic()
+    fast_tier = 'pytest -x -q -p no:cacheprovider -m "not slow"'
+    report(f"mutation check: {len(mutants)} mutants, the fast tier ({fast_tier}) in a copy")
+    report()
+    for m in mutants:
+        files = ", ".join(m.files) if len(m.files) < 4 else f"{len(m.files)} scripts"
+        report(f"  {m.id}: {m.breaks} [{files}]")
+    report()
+    scratch = make_scratch()
+    try:
+        shadowing = imports_from(scratch)
+        if shadowing:
+            report(f"the copy's tests would not import the copy's packages: {shadowing}")
+            return 2
+        if not args.lint_only:
+            status, failed, seconds = run_pytest(scratch, (), args.timeout)
+            if status != "survived":
+                report(
+                    f"the unmutated tree's fast tier does not pass ({status} {failed}, "
+                    f"{seconds:.0f} s): nothing to check against"
+                )
+                return 2
+            report(f"unmutated: the fast tier passes in {seconds:.0f} s")
+            report()
+        width = max(len(m.id) for m in mutants)
+        report(f"{'id':<{width}}  {'result':<8}  {'seconds':>7}  caught by")
+        caught = linted = 0
+        for m in mutants:
+            originals = {path: (scratch / path).read_text() for path in m.files}
+            try:
+                for path, text in originals.items():
+                    (scratch / path).unlink()  # a fresh file, never a shared inode
+                    (scratch / path).write_text(text.replace(m.original, m.replacement))
+                lint = ruff_problems(scratch, m.files)
+                if lint:
+                    status, failed, seconds = "invalid", f"not ruff clean: {lint}", 0.0
+                elif args.lint_only:
+                    status, failed, seconds = "linted", "", 0.0
+                else:
+                    status, failed, seconds = run_pytest(scratch, m.first, args.timeout)
+            finally:
+                for path, text in originals.items():
+                    (scratch / path).write_text(text)
+            caught += status == "caught"
+            linted += status == "linted"
+            report(f"{m.id:<{width}}  {status:<8}  {seconds:7.1f}  {failed}")
+        report()
+        if args.lint_only:
+            report(f"{linted} of {len(mutants)} mutants ruff clean")
+            return 0 if linted == len(mutants) else 1
+        report(
+            f"{caught} of {len(mutants)} mutants caught by the fast tier "
+            f"(in {(time.monotonic() - began) / 60:.1f} min)"
+        )
+        return 0 if caught == len(mutants) else 1
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+        if args.out:
+            out = ROOT / args.out if not Path(args.out).is_absolute() else Path(args.out)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
