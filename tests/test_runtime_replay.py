@@ -331,3 +331,29 @@ def test_weights_changed_between_acting_and_learning_are_refused():
         layer.weight.add_(1.0)  # e.g. theta' synced again before the update
     with pytest.raises(RuntimeError, match="layer 'Linear''s weights changed"):
         layer(frames[:3])
+
+
+class StatefulBetween(nn.Module):
+    """fc2 sees fc1's output plus a state, as an LSTM's heads see its cell's: the learning pass
+    must bring the state acting had."""
+
+    def __init__(self):
+        super().__init__()
+        self.fc1, self.fc2, self.state = nn.Linear(3, 3), nn.Linear(3, 2), 0.0
+
+    def forward(self, x):
+        return self.fc2(torch.tanh(self.fc1(x)) + self.state)
+
+
+def test_a_layer_fed_other_inputs_in_the_learning_pass_is_refused_by_name():
+    """A recurrent state started wrong in the learning pass: fc2's replayed outputs would be
+    acting's for other inputs (a wrong value, with no error from the rows or the order)."""
+    torch.manual_seed(0)
+    net, frames = StatefulBetween(), torch.randn(4, 3)
+    runtime.ActivationReplay(net, frames)
+    acted(net, frames, 3)
+    torch.testing.assert_close(net(frames[:4]), net.fc2(torch.tanh(net.fc1(frames[:4]))))
+    acted(net, frames, 3)
+    net.state = 0.5  # the learning pass's state is not acting's
+    with pytest.raises(RuntimeError, match="layer 'fc2' gets other inputs in the learning forward"):
+        net(frames[:4])

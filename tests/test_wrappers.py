@@ -320,3 +320,43 @@ def test_native_atari_vector_env_takes_any_gymnasium_seed(seed):
     again, _ = envs.reset(seed=seed)
     np.testing.assert_array_equal(first, again)
     envs.close()
+
+
+def test_native_atari_frames_are_the_python_paths_over_a_few_steps():
+    """The fast tier's share of the frame-for-frame comparison (the slow tier plays 1,200 and
+    3,600 steps): both paths max-pool the last two frames of each skip, so over 100 steps of
+    Breakout, where the ball moves between them, their frames agree."""
+    pytest.importorskip("ale_py")
+    from catch_env.wrappers import make_vector_env
+
+    options = {"noop_max": 0, "fire_reset": False}
+    native = make_vector_env("BreakoutNoFrameskip-v4", 2, **options)
+    python = make_vector_env("BreakoutNoFrameskip-v4", 2, backend="python", **options)
+    native.reset(seed=5)
+    python.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        largest = step_both(native, python, rng.integers(0, 4, 2))[0]
+        assert largest == 0
+    native.close()
+    python.close()
+
+
+@pytest.mark.parametrize("backend", ["native", "python"])
+def test_a_lost_point_is_minus_one_after_clipping(backend):
+    """Pong's rewards are -1 and +1 points: clipping to [-1, 1] keeps a lost point's -1 (a
+    clip to [0, 1] would hide every loss from the agent)."""
+    pytest.importorskip("ale_py")
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("PongNoFrameskip-v4", 2, backend=backend)
+    envs.reset(seed=0)
+    rng = np.random.default_rng(0)
+    lowest = 0.0
+    for _ in range(400):  # a random player loses its first point in well under 400 steps
+        _, rewards, *_ = envs.step(rng.integers(0, 6, 2))
+        lowest = min(lowest, float(rewards.min()))
+        if lowest < 0:
+            break
+    envs.close()
+    assert lowest == -1.0

@@ -22,8 +22,10 @@ outputs. A network's learning forward must call each layer on the rollout's rows
 forward. Under --precision bf16-learn the replayed outputs are acting's fp32 ones and the
 backward runs in bf16. Anything it cannot replay exactly (a layer called twice in one forward, a
 Conv2d or Linear subclass, non-zero or string padding, a learning forward over other rows than
-acting's, in another order, or after the weights changed) raises a RuntimeError naming it, at the
-latest at the first update. It runs only where it measured faster (replay_activations).
+acting's, in another order, or after the weights changed, or a layer fed other inputs than
+acting fed it: each recorded row keeps its input's sum as a fingerprint) raises a RuntimeError
+naming it, at the latest at the first update. It runs only where it measured faster
+(replay_activations).
 """
 
 from __future__ import annotations
@@ -73,6 +75,7 @@ class ActivationReplay:
                     type(layer)
                 ]  # a subclass: only forward changes
                 layer.replay, layer.recorded, layer.count, layer.cursor = self, None, 0, 0
+                layer.input_sums = None
                 layer.replay_name, layer.calls = name, 0
                 self.layers.append(layer)
         model.register_forward_pre_hook(self._before_forward)
@@ -167,6 +170,7 @@ class _Recording:
     replay: ActivationReplay
     replay_name: str  # the layer's name in the model, for error messages
     recorded: torch.Tensor | None
+    input_sums: torch.Tensor | None  # each recorded row's input, summed: its fingerprint
     count: int  # rows recorded in this rollout
     cursor: int  # rows taken back by the replay so far
     calls: int  # calls in the current forward (more than one is an error)
@@ -194,23 +198,54 @@ class _Recording:
         if self.recorded is None or end > len(self.recorded):
             self.grow(rows, end)
         self.recorded[self.count : end] = rows  # a copy: y may get an in-place activation
+        self.input_sums[self.count : end] = row_sums(self, x)
         self.count = end
         return y
 
     def grow(self, rows: torch.Tensor, end: int) -> None:
-        old = self.recorded
+        old, old_sums = self.recorded, self.input_sums
         capacity = max(end, 2 * len(old)) if old is not None else end
         self.recorded = torch.empty_like(rows[:1]).expand(capacity, *rows.shape[1:]).clone()
+        self.input_sums = torch.empty(capacity, dtype=torch.float32)
         if old is not None:
             self.recorded[: self.count] = old[: self.count]
+            self.input_sums[: self.count] = old_sums[: self.count]
 
-    def take(self, rows: int) -> torch.Tensor | None:
-        """The next `rows` recorded rows (fewer where the recording ends; None if none)."""
+    def take(self, rows: int) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The next `rows` recorded rows and their inputs' sums (fewer where the recording
+        ends; None if none)."""
         if self.cursor >= self.count:
             return None
-        taken = self.recorded[self.cursor : min(self.cursor + rows, self.count)]
-        self.cursor += len(taken)
+        end = min(self.cursor + rows, self.count)
+        taken = self.recorded[self.cursor : end], self.input_sums[self.cursor : end]
+        self.cursor = end
         return taken
+
+
+def row_sums(layer: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """Each input row of a Conv2d (a sample) or a Linear (a feature vector), summed in float32:
+    the fingerprint that tells the replay the learning pass feeds the layer acting's inputs."""
+    rows = x.flatten(1) if isinstance(layer, nn.Conv2d) else x.reshape(-1, x.shape[-1])
+    return rows.float().sum(1)
+
+
+def check_inputs(
+    layer: nn.Module, x: torch.Tensor, recorded: torch.Tensor, mixed: bool = False
+) -> None:
+    """A learning forward whose inputs to a replayed layer differ from acting's (a recurrent
+    state or any computation between the layers that differs) would get acting's outputs for
+    other inputs: refused. In one precision the sums are of the same numbers in the same order
+    and agree up to float rounding; mixed (bf16-learn: acting in fp32, what lies between the
+    replayed layers recomputed in bf16) they differ by bf16's rounding, about 1%."""
+    current = row_sums(layer, x)[: len(recorded)]
+    tolerance = 5e-2 if mixed else 1e-4
+    scale = float(recorded.abs().max().clamp_min(1.0))
+    if not torch.allclose(current, recorded, rtol=tolerance, atol=tolerance * scale):
+        layer.replay.reset()
+        raise RuntimeError(
+            f"ActivationReplay: layer {layer.replay_name!r} gets other inputs in the learning "
+            "forward than while acting; build the worker without replay_activations"
+        )
 
 
 class _ReplayedConv2d(_Recording, nn.Conv2d):
@@ -229,6 +264,10 @@ class _Replay(torch.autograd.Function):
         conv = isinstance(layer, nn.Conv2d)
         rows = x.shape[0] if conv else x.numel() // x.shape[-1]
         taken = layer.take(rows)
+        if taken is not None:
+            taken, sums = taken
+            mixed = taken.dtype == torch.float32 and torch.is_autocast_enabled("cpu")
+            check_inputs(layer, x.detach(), sums, mixed)
         done = 0 if taken is None else len(taken)
         if done < rows:  # rows acting never saw (s_n): computed here, in acting's precision
             rest_x = x[done:] if conv else x.reshape(rows, -1)[done:]
