@@ -223,10 +223,13 @@ class _Recording:
 
 
 def row_sums(layer: nn.Module, x: torch.Tensor) -> torch.Tensor:
-    """Each input row of a Conv2d (a sample) or a Linear (a feature vector), summed in float32:
-    the fingerprint that tells the replay the learning pass feeds the layer acting's inputs."""
-    rows = x.flatten(1) if isinstance(layer, nn.Conv2d) else x.reshape(-1, x.shape[-1])
-    return rows.float().sum(1)
+    """A fingerprint of each input row of a Conv2d (a sample) or a Linear (a feature vector):
+    the float32 sum of a fixed subset of it (every 4th pixel of every 4th image row, every 4th
+    feature), which tells the replay whether the learning pass feeds the layer acting's inputs.
+    A subset, summed where it lies: the whole input would cost a tenth of what the replay saves."""
+    if isinstance(layer, nn.Conv2d):
+        return x[:, :, ::4, ::4].sum(dim=(1, 2, 3), dtype=torch.float32)
+    return x[..., ::4].sum(dim=-1, dtype=torch.float32).reshape(-1)
 
 
 def check_inputs(
