@@ -14,6 +14,7 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
 - `future_work_summary`, `future_work_initial_policy`, `future_work_trained_scale`,
   `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch);
 - `training_scalars`: a run's TensorBoard training scalars by 1M steps;
+- `record_play`: a checkpoint's agent playing one episode, as an animated GIF;
 - `atari_report`: the Atari lines across seeds and games with rliable (the IQM with stratified
   bootstrap intervals, a performance profile; its lines are data: atari_report.toml).
 

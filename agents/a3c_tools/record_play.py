@@ -1,0 +1,142 @@
+"""A trained agent playing, as an animated GIF for the docs: one episode of a checkpoint's
+network on the game it was trained on, drawn from the game's own screen (the ALE's 210x160
+frames, Catch's 84x84), the actions sampled from pi as the thesis's evaluations sample them.
+
+    python -m a3c_tools.record_play results/breakout_a3c_ff/checkpoint.pt \\
+        -o docs/img/breakout_a3c_ff.gif --seed 1 --speed 2
+
+It plays the whole episode (so the score it prints is the game's), then writes it, or its first
+--seconds, at --speed times the game's own speed (Atari: 60 frames/s of which the agent sees
+every 4th, so 15 screens per second; Catch: 10 steps per second), every --speed-th screen
+shown. The checkpoint names the script that wrote it;
+that script builds the env and the network. Pillow (the `tools` extra, through matplotlib)
+writes the GIF.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from a3c_tools import AGENTS, load_script, run_main
+
+FRAMES_PER_SECOND = {"catch": 10, "atari": 15}  # Catch has no clock; ALE: 60 Hz / frameskip 4
+
+
+def checkpoint_script(path: str) -> str:
+    """The agent script (agents/<name>) that wrote the checkpoint, read after its seal is
+    verified; a bad file is refused in one line."""
+    from a3c_runtime import UsageError
+    from a3c_runtime.checkpoints import check_checkpoint_path, verify_checkpoint
+
+    check_checkpoint_path(path)
+    data = Path(path).read_bytes()
+    problem = verify_checkpoint(data)
+    if problem is not None:
+        raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
+    try:
+        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+    except Exception as e:
+        raise UsageError(f"{path!r} is not a checkpoint of the agent scripts: {e}") from None
+    script = checkpoint.get("script") if isinstance(checkpoint, dict) else None
+    if not script or not (AGENTS / script).is_file():
+        raise UsageError(f"{path!r} does not name an agent script that wrote it")
+    return script
+
+
+def play_recorded(
+    path: str, seed: int, greedy: bool = False
+) -> tuple[list[np.ndarray], float, str]:
+    """One episode of the checkpoint's network: the screen before each action and after the
+    last, the episode's raw score and the env id."""
+    from a3c_runtime.checkpoints import load_checkpoint, load_network
+    from a3c_runtime.flags import probe_env
+
+    import catch_env  # noqa: F401  (registers Catch-v0)
+
+    agent = load_script(AGENTS / checkpoint_script(path)).AGENT
+    checkpoint = load_checkpoint(path, agent)
+    trained = agent.Args(**agent.trained_args(checkpoint))
+    model = agent.network(probe_env(agent.make_env, trained.env), trained)
+    load_network(model, checkpoint, path)
+    if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
+        model.set_progress(checkpoint["global_step"] / trained.total_timesteps)
+    env = agent.make_env(trained.env, render_mode="rgb_array")
+    generator = torch.Generator().manual_seed(seed)
+    observation, _ = env.reset(seed=seed)
+    frames = [env.render()]
+    state = model.initial_state(1) if hasattr(model, "initial_state") else None
+    with torch.inference_mode():
+        while True:
+            batch = torch.from_numpy(observation[None])
+            if state is not None:  # a recurrent network: one step (T = 1) with its state
+                log_probs, _, state = model(batch[None], state)
+                log_probs = log_probs[0]
+            else:
+                log_probs = model(batch)[0]
+            probs = log_probs[0].float().exp()
+            sampled = torch.multinomial(probs, 1, generator=generator) if not greedy else None
+            action = int(probs.argmax() if greedy else sampled)
+            observation, _, terminated, truncated, info = env.step(action)
+            frames.append(env.render())
+            if terminated or truncated:
+                env.close()
+                return frames, float(info["episode"]["r"]), trained.env
+
+
+def write_gif(frames: list[np.ndarray], out: Path, fps: int, scale: int = 1) -> None:
+    """An animated GIF, looping, at fps as near as a GIF can (its durations are whole 10 ms,
+    and Pillow truncates: 1000 / 15 would be stored as 60 ms)."""
+    from PIL import Image
+
+    images = [Image.fromarray(np.asarray(frame, dtype=np.uint8)) for frame in frames]
+    if scale > 1:
+        images = [i.resize((i.width * scale, i.height * scale), Image.NEAREST) for i in images]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    images[0].save(
+        out, save_all=True, append_images=images[1:], duration=10 * round(100 / fps), loop=0,
+        optimize=True,
+    )  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint", help="a checkpoint.pt written by an agent script")
+    parser.add_argument("-o", "--out", type=Path, required=True, help="the GIF to write")
+    parser.add_argument("--seed", type=int, default=1, help="of the episode and its actions")
+    parser.add_argument("--seconds", type=float, help="of the GIF (default: the whole episode)")
+    parser.add_argument("--speed", type=int, default=1, help="times the game's speed")
+    parser.add_argument("--scale", type=int, default=1, help="pixels per screen pixel")
+    parser.add_argument("--greedy", action="store_true", help="argmax pi, not a sample")
+    args = parser.parse_args(argv)
+    from a3c_runtime import UsageError
+
+    try:
+        if (args.seconds is not None and args.seconds <= 0) or args.scale < 1 or args.speed < 1:
+            raise UsageError("--seconds must be > 0, --scale and --speed >= 1")
+        if args.out.suffix.lower() != ".gif":
+            raise UsageError(f"--out must end in .gif (got {str(args.out)!r})")
+        frames, score, env_id = play_recorded(args.checkpoint, args.seed, args.greedy)
+    except UsageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    fps = FRAMES_PER_SECOND["catch" if env_id.startswith("Catch") else "atari"]
+    shown = frames[:: args.speed]
+    if args.seconds is not None:
+        shown = shown[: max(1, round(args.seconds * fps))]
+    write_gif(shown, args.out, fps, args.scale)
+    print(
+        f"{args.out}: {len(shown)} of the episode's {len(frames)} screens ({len(shown) / fps:.0f} "
+        f"s at {fps}/s, {args.speed}x the game's speed); the episode scored {score:g} "
+        f"(seed {args.seed})"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    run_main(main)
