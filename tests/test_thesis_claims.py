@@ -1,8 +1,11 @@
-"""Tests of a3c_tools.thesis_claims (docs/claims.md from the committed results): the page holds
-what the script makes of the data, and the handling of lines not run yet. The verdict rule and
-the paired bootstrap, a3c_tools.paired's, are tested in test_compare.py."""
+"""Tests of a3c_tools.thesis_claims (docs/claims.md from the committed results): the page and its
+forest plot hold what the script makes of the data, the plot draws the page's rows, and the
+handling of lines not run yet. The verdict rule and the paired bootstrap, a3c_tools.paired's,
+are tested in test_compare.py."""
 
 import csv
+import dataclasses
+import re
 
 from a3c_tools import thesis_claims as claims  # noqa: E402
 from conftest import ROOT, run_main
@@ -20,7 +23,66 @@ def test_the_check_option_fails_on_a_stale_page(tmp_path):
     stale = tmp_path / "claims.md"
     stale.write_text("# an old page\n")
     done = run_main(claims.main, ["--check", str(stale)])
-    assert done.returncode == 1 and "is stale" in done.stdout
+    assert done.returncode == 1 and "are stale" in done.stdout  # the page, and no figure
+    assert done.stdout.strip().endswith(f"python -m a3c_tools.thesis_claims -o {stale}")
+
+
+def test_the_committed_page_and_figure_pass_the_check():
+    done = run_main(claims.main, ["--check", "docs/claims.md"])
+    assert done.returncode == 0, done.stdout  # the stdout names the command that regenerates
+
+
+def test_the_check_fails_on_a_missing_or_changed_figure(tmp_path, monkeypatch):
+    page = tmp_path / "claims.md"
+    assert run_main(claims.main, ["-o", str(page)]).returncode == 0
+    figure = tmp_path / "img" / "claims_forest.png"
+    assert figure.is_file()
+    assert run_main(claims.main, ["--check", str(page)]).returncode == 0
+    # a line's scores changed: one row's numbers change, on the page and in the figure
+    scores = claims.scores
+
+    def shifted(folder: str, column: str = "score") -> dict[str, float]:
+        bump = 0.01 if folder.endswith("glpq_growth") else 0.0
+        return {run: score + bump for run, score in scores(folder, column).items()}
+
+    monkeypatch.setattr(claims, "scores", shifted)
+    done = run_main(claims.main, ["--check", str(page)])
+    assert done.returncode == 1 and done.stdout.startswith(f"{page} and {figure} are stale: ")
+    monkeypatch.undo()
+    # one row's effect moved: the page still holds, the figure does not
+    points = claims.plotted(figure)
+    points[0] = dataclasses.replace(points[0], effect=points[0].effect + 0.001)
+    claims.draw(points, figure)
+    done = run_main(claims.main, ["--check", str(page)])
+    assert done.returncode == 1 and done.stdout.startswith(f"{figure} is stale: ")
+    figure.write_bytes(b"not a PNG")
+    assert run_main(claims.main, ["--check", str(page)]).returncode == 1
+    figure.unlink()
+    done = run_main(claims.main, ["--check", str(page)])
+    assert done.returncode == 1 and done.stdout.startswith(f"{figure} is stale: ")
+
+
+def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
+    text = (ROOT / "docs" / "claims.md").read_text()
+    assert f"]({claims.FIGURE.as_posix()})" in text.split("## ")[0]  # it opens the page
+    rows, section = [], None  # (section, effect cell, verdict) of each row with an interval
+    for line in text.splitlines():
+        if line.startswith("## "):
+            section = line[3:]
+        cells = line.split(" | ")
+        if line.startswith("| ") and re.fullmatch(r"[+-]\d\.\d{3} \[.*\]", cells[-2]):
+            rows.append((section, cells[-2], cells[-1].split("**")[1]))
+    points = claims.plotted(ROOT / "docs" / claims.FIGURE)
+    drawn = [(p.section, f"{p.effect:+.3f} [{p.low:+.3f}, {p.high:+.3f}]", p.verdict)
+             for p in points]  # fmt: skip
+    assert drawn == rows and len(rows) >= 25
+    assert all(point.colour == claims.COLOURS[point.verdict] for point in points)
+    assert set(claims.COLOURS) == {"reproduced", "contradicted", "inconclusive"}
+    assert len(set(claims.COLOURS.values())) == 3  # one colour to each verdict
+    # the caption counts the table rows left off: every row, less the heads, less those drawn
+    left_off = text.count("\n| ") - text.count("\n|---") - len(rows)
+    assert f"*The {len(rows)} rows with an interval" in text
+    assert f"Left off, having no interval: {left_off} " in text
 
 
 def test_every_claim_names_its_place_form_and_evidence_and_its_lines_exist_or_a_command():

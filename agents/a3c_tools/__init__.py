@@ -6,8 +6,8 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
 - `plot_sweep`, `plot_evaluations`: the thesis-style figures of a sweep, a run's learning curve;
 - `thesis_figures`: a thesis Catch figure's lines, as run, through `sweep` and `plot_sweep`
   (its figures are data: thesis_figures.toml);
-- `thesis_claims`: the claims page (docs/claims.md) from the committed results
-  (thesis_claims.toml);
+- `thesis_claims`: the claims page (docs/claims.md) and its forest plot from the committed
+  results (thesis_claims.toml);
 - `compare`: two scripts, or one with two flag sets, at the same learning rates and run seeds:
   the paired effect, its 95% interval, a verdict and a figure (docs/testing-your-idea.md); it
   and `thesis_claims` share `paired` (the pairing, the bootstrap interval, the verdict rule);

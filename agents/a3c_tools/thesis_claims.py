@@ -1,8 +1,9 @@
-"""The thesis's claims, each with our evidence, a 95% interval and a verdict: docs/claims.md.
+"""The thesis's claims, each with our evidence, a 95% interval and a verdict: docs/claims.md,
+which opens with a forest plot of the rows, docs/img/claims_forest.png.
 
-    python -m a3c_tools.thesis_claims                  # print the page
-    python -m a3c_tools.thesis_claims -o docs/claims.md
-    python -m a3c_tools.thesis_claims --check docs/claims.md   # exit 1 if the page is stale
+    python -m a3c_tools.thesis_claims                  # print the page (no figure)
+    python -m a3c_tools.thesis_claims -o docs/claims.md        # the page and its figure
+    python -m a3c_tools.thesis_claims --check docs/claims.md   # exit 1 if either is stale
 
 The claims are in agents/a3c_tools/thesis_claims.toml. A claim compares two lines of the same sweep
 design (the same learning rates and run seeds, so runs pair up by run_id): each line's
@@ -11,17 +12,29 @@ evaluations). The pairing, the effect with its 95% BCa interval and the verdict 
 a3c_tools.paired's (its docstring gives the rules), which `a3c_tools.compare` uses too. A claim
 whose lines have not been run yet, or that has one run per line (the Atari figures), gets no
 interval: the row says what would decide it.
+
+The forest plot has one row per claim with an interval (the paired mean effect as a dot, its
+95% interval as a bar, coloured by verdict, grouped by the page's sections); the rows without
+one are left off, and the caption under it counts them. It lives at img/claims_forest.png
+beside the page (`-o docs/claims.md` writes docs/img/claims_forest.png), which the page links.
+The numbers drawn, each row's section, label, effect, interval, verdict and colour, are written
+into the PNG itself (its "Description" text chunk, as JSON), and `--check` compares those with
+what would be drawn now: the check is of the data, not of the pixels, which differ between
+matplotlib versions.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import re
 import sys
 from collections import Counter
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from a3c_tools import run_main
-from a3c_tools.paired import pair, read_scores
+from a3c_tools.paired import MARGIN, Paired, pair, read_scores
 
 try:
     import tomllib
@@ -30,6 +43,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository
 CLAIMS = Path(__file__).with_name("thesis_claims.toml")
+FIGURE = Path("img/claims_forest.png")  # the forest plot, relative to the page
 
 
 def scores(folder: str, column: str = "score") -> dict[str, float]:
@@ -37,12 +51,21 @@ def scores(folder: str, column: str = "score") -> dict[str, float]:
     return read_scores(ROOT / folder / "results.csv", column)
 
 
+def compared(claim: dict) -> Paired | None:
+    """The claim's two lines paired by run_id, with the effect and its interval; None for a
+    claim judged without a pair of lines, or whose lines are not run yet."""
+    if "baseline" not in claim:
+        return None
+    column = claim.get("score", "score")
+    return pair(scores(claim["baseline"], column), scores(claim["line"], column))
+
+
 def evidence(claim: dict) -> tuple[str, str, str]:
     """(our numbers, the effect with its interval, the verdict) of one claim."""
     if "baseline" not in claim:
         return claim["ours"], "-", claim["verdict"]
     column = claim.get("score", "score")
-    paired = pair(scores(claim["baseline"], column), scores(claim["line"], column))
+    paired = compared(claim)
     if paired is None:  # the command goes to the page's list of what is missing
         return "not run yet (the command is in the last section)", "-", "not run yet"
     names = claim.get("names", ["baseline", "line"])
@@ -72,10 +95,153 @@ def tally(verdicts: list[str]) -> str:
     return f"**At a glance**: {len(verdicts)} rows: {parts}."
 
 
+# The forest plot. Colours by the verdict's first word; the checks compare them with the page.
+COLOURS = {"reproduced": "#2e7d32", "contradicted": "#c62828", "inconclusive": "#8a8a8a"}
+SYMBOLS = {"better": ">", "worse": "<", "comparable": "\u2248"}  # line against baseline
+
+
+@dataclass(frozen=True)
+class Point:
+    """One row of the forest plot: a claim with an interval, its numbers as the page rounds
+    them (to 3 decimals, so that the plot and the table agree digit for digit)."""
+
+    section: str
+    label: str
+    effect: float
+    low: float
+    high: float
+    verdict: str  # the verdict's first word
+    colour: str
+
+
+def label(claim: dict) -> str:
+    """A row's short name on the plot: its figure, the claim as "line > baseline" (< for worse,
+    an approximately-equal sign for comparable) and its form, as in
+    "Fig. 6.5: WW < FF (as written, --conv-layout final)"."""
+    found = re.search(r"Figures? ((?:[A-Z]|\d+)\.\d+)", claim["where"])
+    # a script's path (chapter 8's ideas) by its stem; "as run" is said once, by the form
+    base, line = (
+        Path(name).stem.removeprefix("a3c_")
+        if name.endswith(".py")
+        else name.removesuffix(" as run")
+        for name in claim["names"]
+    )
+    form = claim["form"] + (", all evaluations" if claim.get("score") == "score_all" else "")
+    head = f"Fig. {found[1]}: " if found else ""
+    return f"{head}{line} {SYMBOLS[claim['expect']]} {base} ({form})"
+
+
+def forest_points(claims: dict) -> list[Point]:
+    """The forest plot's rows, in the page's order: every claim with an interval."""
+    points = []
+    for section in claims["section"]:
+        for claim in section["claim"]:
+            paired = compared(claim)
+            if paired is None:
+                continue
+            verdict = paired.verdict(claim["expect"]).partition(":")[0]
+            effect, low, high = (round(x, 3) for x in (paired.effect, paired.low, paired.high))
+            points.append(Point(section["title"], label(claim), effect, low, high, verdict,
+                                COLOURS[verdict]))  # fmt: skip
+    return points
+
+
+def draw(points: list[Point], path: Path) -> None:
+    """The forest plot of the points, as a PNG whose "Description" holds the points (JSON)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from matplotlib.transforms import blended_transform_factory
+
+    sections = list(dict.fromkeys(point.section for point in points))
+    rows = len(points) + len(sections)  # a heading row above each section's points
+    fig, ax = plt.subplots(figsize=(8, 0.28 * rows + 1.5), layout="constrained")
+    left = blended_transform_factory(ax.transAxes, ax.transData)  # x in axes, y in rows
+    ticks, names, y = [], [], 0
+    for section in sections:
+        # a heading bar over the grid, the band and the line at 0, under no point
+        ax.axhspan(y - 0.5, y + 0.5, color="#eeeeee", zorder=2.5)
+        ax.text(0.005, y, section, transform=left, va="center", fontsize=8.5, weight="bold",
+                zorder=5)  # fmt: skip
+        for point in (point for point in points if point.section == section):
+            y += 1
+            ax.plot([point.low, point.high], [y, y], color=point.colour, lw=1.8, zorder=3)
+            ax.plot(point.effect, y, "o", color=point.colour, ms=4.5, zorder=4)
+            ticks.append(y)
+            names.append(point.label)
+        y += 1
+    ax.axvspan(-MARGIN, MARGIN, color="#dde6f3", zorder=1)
+    ax.axvline(0, color="black", lw=0.8, zorder=2)
+    ax.set_yticks(ticks, names, fontsize=7.5)
+    ax.set_ylim(y - 0.5, -0.5)  # the first section on top
+    ax.tick_params(axis="y", length=0)
+    ax.tick_params(axis="x", labelsize=8, top=True, labeltop=True)
+    ax.grid(axis="x", color="#dddddd", lw=0.6, zorder=0)
+    ax.set_xlabel(
+        "paired mean effect: line - baseline in Catch score (the fraction of balls caught)",
+        fontsize=8,
+    )
+    handles = [Line2D([], [], color=colour, marker="o", ms=4.5, lw=1.8, label=verdict)
+               for verdict, colour in COLOURS.items()]  # fmt: skip
+    handles.append(Patch(color="#dde6f3", label=f"\u00b1{MARGIN} (comparable)"))
+    fig.legend(handles=handles, loc="outside upper center", ncol=4, fontsize=8, frameon=False)
+    description = json.dumps([asdict(point) for point in points])
+    fig.savefig(path, dpi=130, metadata={"Software": None, "Description": description})
+    plt.close(fig)
+
+
+def plotted(path: Path) -> list[Point] | None:
+    """The points a forest plot was drawn from, read back from the PNG; None if there is no
+    such file or it carries none."""
+    if not path.is_file():
+        return None
+    from PIL import Image, UnidentifiedImageError  # matplotlib's own dependency
+
+    try:
+        with Image.open(path) as image:
+            description = getattr(image, "text", {}).get("Description")
+    except UnidentifiedImageError:
+        return None
+    if description is None:
+        return None
+    return [Point(**point) for point in json.loads(description)]
+
+
+def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
+    """The forest plot's caption: what it draws, and which rows it leaves off (those without an
+    interval), by reason and section."""
+    left_off: dict[str, Counter] = {}
+    titles = [section["title"] for section in claims["section"] for _ in section["claim"]]
+    for title, (_, effect, call) in zip(titles, rows, strict=True):
+        if effect == "-":
+            why = "not run yet" if call == "not run yet" else "judged without a pair of lines"
+            left_off.setdefault(why, Counter())[title] += 1
+    drawn = len(rows) - sum(sum(counts.values()) for counts in left_off.values())
+    text = (
+        f"*The {drawn} rows with an interval: the paired mean effect (line - baseline, in Catch "
+        "score) with its 95% interval, coloured by verdict; a label reads as the claim (line > "
+        f"baseline for better, < for worse, \u2248 for comparable: within the band of "
+        f"\u00b1{MARGIN})."
+    )
+    if left_off:
+        text += " Left off, having no interval: " + "; ".join(
+            f"{sum(counts.values())} {why} ("
+            + ", ".join(f"{count} in {title}" for title, count in counts.items()) + ")"
+            for why, counts in left_off.items()
+        ) + "."  # fmt: skip
+    return text + "*"
+
+
 def render(claims: dict) -> str:
     """The whole page, in Markdown."""
     rows = [evidence(claim) for section in claims["section"] for claim in section["claim"]]
     out, missing = [claims["intro"].strip(), "", tally([call for *_, call in rows]), ""], {}
+    if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
+        out += [f"![The claims' effects with their 95% intervals]({FIGURE.as_posix()})", ""]
+        out += [caption(claims, rows), ""]
     next_row = iter(rows)
     for section in claims["section"]:
         out += [f"## {section['title']}", ""]
@@ -107,19 +273,40 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m a3c_tools.thesis_claims", description=__doc__.split("\n")[0]
     )
-    parser.add_argument("-o", "--out", type=Path, help="write the page here (default: stdout)")
-    parser.add_argument("--check", type=Path, help="exit 1 if this page differs from the data")
+    parser.add_argument(
+        "-o",
+        "--out",
+        type=Path,
+        help="write the page here and its figure in img/ beside it (default: the page to stdout)",
+    )
+    parser.add_argument(
+        "--check", type=Path, help="exit 1 if this page or its figure differs from the data"
+    )
     opts = parser.parse_args(argv)
     with open(CLAIMS, "rb") as f:
-        page = render(tomllib.load(f))
+        claims = tomllib.load(f)
+    page, points = render(claims), forest_points(claims)
     if opts.check is not None:
-        if not opts.check.is_file() or opts.check.read_text() != page:
-            print(f"{opts.check} is stale: python -m a3c_tools.thesis_claims -o {opts.check}")
+        figure = opts.check.parent / FIGURE
+        stale = (
+            [str(opts.check)] if not opts.check.is_file() or opts.check.read_text() != page else []
+        )
+        if points and plotted(figure) != points:  # the data drawn, not the pixels
+            stale.append(str(figure))
+        if stale:
+            are = "is" if len(stale) == 1 else "are"
+            command = f"python -m a3c_tools.thesis_claims -o {opts.check}"
+            print(f"{' and '.join(stale)} {are} stale: {command}")
             return 1
-        print(f"{opts.check} holds what the committed results give")
+        print(f"{opts.check} and its figure hold what the committed results give")
     elif opts.out is not None:
         opts.out.write_text(page)
         print(f"wrote {opts.out}")
+        if points:
+            figure = opts.out.parent / FIGURE
+            figure.parent.mkdir(parents=True, exist_ok=True)
+            draw(points, figure)
+            print(f"wrote {figure}")
     else:
         sys.stdout.write(page)
     return 0
