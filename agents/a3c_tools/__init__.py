@@ -6,6 +6,8 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
 - `plot_sweep`, `plot_evaluations`: the thesis-style figures of a sweep, a run's learning curve;
 - `thesis_figures`: a thesis Catch figure's lines, as run, through `sweep` and `plot_sweep`
   (its figures are data: thesis_figures.toml);
+- `atari_figures`: the thesis's Atari figures (6.9, 6.10, 7.8) over seeds, through `sweep`, drawn
+  with a shaded band (its figures are data: atari_figures.toml);
 - `thesis_claims`: the claims page (docs/claims.md) and its forest plot from the committed
   results (thesis_claims.toml);
 - `compare`: two scripts, or one with two flag sets, at the same learning rates and run seeds:

@@ -1,0 +1,576 @@
+"""The thesis's Atari figures (6.9, 6.10, 7.8) as one command each: every line over seeds, drawn.
+
+    python -m a3c_tools.atari_figures --list                 # the figures, games, lines, flags
+    python -m a3c_tools.atari_figures fig6.9 --seeds 3 --steps 2000000 --out figures/atari
+    python -m a3c_tools.atari_figures fig7.8 --seeds 3 --steps 2000000 --out figures/atari \\
+        --games Breakout --lines ff lpq_fig78 glpq_fig78 --dry-run
+    python -m a3c_tools.atari_figures all --out figures/atari --plot-only
+
+Design. The figures, their games, lines (script and flags, the text's and the as-run forms where
+they differ) and the thesis's numbers are data: atari_figures.toml beside this file (its header
+gives the format). Each (figure, game, line) is one a3c_tools.sweep of a fixed configuration,
+with no sampled flag: its run i is seed 1 + 1000 i (sweep.py's run seeds), in
+OUT/FIG/GAME/LINE/runs/run-000i, so sweep.py's locking, resuming and Ray backend are reused:
+
+    python -m a3c_tools.sweep agents/SCRIPT --out OUT/FIG/GAME/LINE --runs N \\
+        --total-timesteps S --seed 1 -- --env GAMENoFrameskip-v4 COMMON FLAGS \\
+        --eval-interval 1000000 --eval-episodes E --num-workers W
+
+Resuming is sweep.py's: a run in the line's results.csv (finished) is skipped, one that was
+interrupted goes on from its checkpoint.pt (`--resume`), and a folder holding another
+configuration (other steps, flags, episodes or workers) is refused with one line (exit 2); a
+larger --seeds adds seeds. A line that two figures share (A3C FF of 6.9 and 7.8) names the first
+with `same_as`: its runs are made once, in that figure's folder.
+
+Locally (the default) each run takes --num-workers workers (default: this machine's cores, as
+the committed Atari runs did, so one run at a time uses every core), and the lines are run in
+rounds of one seed each (seed 1 of every game and line, then seed 1001, ...), so that a stopped
+figure has covered its lines evenly. With --backend ray each line's seeds run at once over the
+cluster (sweep.py's Ray path; one line after the other). To split a figure over machines without
+Ray, give each machine some --games or --lines into its own OUT and copy the folders together
+before --plot-only.
+
+Protocol. The thesis evaluated every 1M steps with 50 episodes (docs/thesis-notes.md, its
+captions of Figures 6.9, 6.10 and 7.8) and averaged 5 runs per line. Here the interval is 1M
+steps (--eval-interval) and the episodes per evaluation --eval-episodes (default 10, which keeps
+the evaluator's share of a 2-core machine near 5%; the thesis: 50).
+
+Drawing. OUT/FIG/FIG.png has one panel per game: each line is the mean over seeds of the
+evaluation score against steps, the band the mean +- one standard error over seeds (the thesis's
+shaded areas are standard errors), drawn at the steps every seed has reached; the thesis's
+values read off its figure (where the data file has them) are markers at the right edge,
+labelled "thesis, N M steps", and its statement is written under the panels. OUT/FIG/curves.csv
+holds the plotted values (figure, game, line, step, seeds, mean, se), OUT/FIG/results.csv a row
+per run (figure, game, line, seed, final_score, final_step). A figure is drawn after its runs,
+or from whatever runs exist with --plot-only.
+
+Exit codes: 0 when done, 1 when some line's every run failed, 2 for bad arguments, a malformed
+atari_figures.toml or a folder holding another configuration (nothing is created), 130 when
+interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import functools
+import math
+import shlex
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from a3c_tools import run_main
+from a3c_tools.thesis_figures import DataError, Parser, display, execute, plural, positive_int
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+ROOT = Path(__file__).resolve().parents[2]  # the repository
+AGENTS = ROOT / "agents"
+SWEEP = ["-m", "a3c_tools.sweep"]
+DATA = Path(__file__).with_name("atari_figures.toml")
+EVAL_INTERVAL = 1_000_000  # the thesis's: an evaluation every 1M steps
+EVAL_EPISODES = 10  # the thesis: 50
+THESIS_EPISODES = 50
+SEED = 1  # sweep.py's default: run seeds 1, 1001, 2001, ...
+
+
+@dataclass(frozen=True)
+class Line:
+    slug: str
+    label: str
+    script: str
+    flags: str
+    source: str
+    same_as: str = ""
+
+    @property
+    def argv(self) -> list[str]:
+        return shlex.split(self.flags)
+
+
+@dataclass(frozen=True)
+class Number:
+    """A value of the thesis's, read off its figure: [low, high] at steps."""
+
+    game: str
+    line: str
+    low: float
+    high: float
+    steps: int
+    note: str
+
+
+@dataclass(frozen=True)
+class Figure:
+    id: str
+    caption: str
+    thesis: str
+    games: tuple[str, ...]
+    lines: tuple[Line, ...]
+    numbers: tuple[Number, ...] = ()
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Data:
+    env: str
+    common: str
+    figures: tuple[Figure, ...]
+
+
+# ------------------------------------------------------------------------------------------------
+# The data file
+# ------------------------------------------------------------------------------------------------
+KEYS = {
+    "file": {"env": str, "common": str, "figure": list},
+    "figure": {"id": str, "caption": str, "thesis": str, "games": list, "line": list,
+               "note?": str, "number?": list},
+    "line": {"slug": str, "label": str, "script": str, "flags": str, "source": str,
+             "same_as?": str},
+    "number": {"game": str, "line": str, "low": (int, float), "high": (int, float),
+               "steps": int, "note": str},
+}  # fmt: skip
+
+
+def table(entry: object, kind: str, where: str) -> dict:
+    """A table of the data file checked against KEYS, its strings' whitespace runs one space."""
+    keys = {key.rstrip("?"): (types, key[-1] != "?") for key, types in KEYS[kind].items()}
+    if not isinstance(entry, dict):
+        raise DataError(f"{where}: expected a table, got {entry!r}")
+    for key, value in entry.items():
+        if key not in keys:
+            raise DataError(f"{where}: unknown key {key!r} (a {kind} has {', '.join(keys)})")
+        if not isinstance(value, keys[key][0]) or isinstance(value, bool):
+            raise DataError(f"{where}: {key} has the wrong type: {value!r}")
+    for key, (_, required) in keys.items():
+        if required and key not in entry:
+            raise DataError(f"{where}: no {key}")
+    return {key: " ".join(v.split()) if isinstance(v, str) else v for key, v in entry.items()}
+
+
+def words(text: str, where: str) -> list[str]:
+    try:
+        return shlex.split(text)
+    except ValueError as error:
+        raise DataError(f"{where}: not shell words ({error}): {text}") from None
+
+
+def read_figure(entry: object, file: str, index: int) -> Figure:
+    figure = table(entry, "figure", f"{file}: figure {index}")
+    where = f"{file}: figure {figure['id']}"
+    games = figure["games"]
+    if not games or not all(isinstance(g, str) and g.isidentifier() for g in games):
+        raise DataError(f"{where}: games must be a list of names, got {games!r}")
+    lines = []
+    for i, raw in enumerate(figure["line"], 1):
+        line = table(raw, "line", f"{where}, line {i}")
+        at = f"{where}, line {line['slug']}"
+        if not (AGENTS / line["script"]).is_file() or "/" in line["script"]:
+            raise DataError(f"{at}: script {line['script']!r} is not in {display(AGENTS)}/")
+        if line["slug"] != Path(line["slug"]).name or " " in line["slug"] or not line["slug"]:
+            raise DataError(f"{at}: slug {line['slug']!r} is not a plain folder name")
+        words(line["flags"], at)
+        lines.append(Line(**line))
+    slugs = [line.slug for line in lines]
+    if len(set(slugs)) != len(slugs):
+        raise DataError(f"{where}: two lines with the same slug")
+    numbers = []
+    for i, raw in enumerate(figure.get("number", []), 1):
+        number = table(raw, "number", f"{where}, number {i}")
+        if number["game"] not in games or number["line"] not in slugs:
+            raise DataError(f"{where}, number {i}: no game {number['game']!r} or line "
+                            f"{number['line']!r} in this figure")  # fmt: skip
+        numbers.append(Number(**number))
+    rest = {key: figure.get(key, "") for key in ("id", "caption", "thesis", "note")}
+    return Figure(**rest, games=tuple(games), lines=tuple(lines), numbers=tuple(numbers))
+
+
+def load_data(path: Path = DATA) -> Data:
+    """The figures of a data file (atari_figures.toml), checked; a DataError if malformed."""
+    file = display(path)
+    try:
+        data = table(tomllib.loads(path.read_text(encoding="utf-8")), "file", file)
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        raise DataError(f"{file}: {error}") from None
+    if "{game}" not in data["env"]:
+        raise DataError(f"{file}: env {data['env']!r} has no {{game}}")
+    words(data["common"], f"{file}: common")
+    figures = tuple(read_figure(entry, file, i) for i, entry in enumerate(data["figure"], 1))
+    ids = [figure.id for figure in figures]
+    if len(set(ids)) != len(ids):
+        raise DataError(f"{file}: two figures with the same id")
+    lines = {
+        f"{figure.id}/{line.slug}": (figure, line) for figure in figures for line in figure.lines
+    }
+    for figure in figures:
+        for line in figure.lines:
+            if not line.same_as:
+                continue
+            where = f"{file}: figure {figure.id}, line {line.slug}: same_as {line.same_as!r}"
+            target = lines.get(line.same_as)
+            if target is None or target[1].same_as:
+                raise DataError(f"{where} is no FIG/SLUG of a line with its own runs")
+            if (target[1].script, target[1].argv) != (line.script, line.argv):
+                raise DataError(f"{where} runs another script or other flags")
+            if not set(figure.games) <= set(target[0].games):
+                raise DataError(f"{where} does not run every game of {figure.id}")
+    return Data(data["env"], data["common"], figures)
+
+
+@functools.cache
+def data() -> Data:
+    return load_data(DATA)
+
+
+def figure_ids() -> tuple[str, ...]:
+    return tuple(figure.id for figure in data().figures)
+
+
+def by_id(figure: str) -> Figure:
+    return next(each for each in data().figures if each.id == figure)
+
+
+def figure_id(text: str) -> str | None:
+    """fig6.9, Fig6.9, 6.9, figure6.9 -> fig6.9; None when there is no such figure."""
+    key = text.strip().lower()
+    for prefix in ("figure", "fig"):
+        if key.startswith(prefix):
+            key = key[len(prefix) :].lstrip(" ._-")
+            break
+    return f"fig{key}" if f"fig{key}" in figure_ids() else None
+
+
+# ------------------------------------------------------------------------------------------------
+# Runs
+# ------------------------------------------------------------------------------------------------
+def run_as(figure: Figure, line: Line) -> tuple[str, Line]:
+    """The figure id and line whose runs a line's are: its own, or its same_as line's."""
+    if not line.same_as:
+        return figure.id, line
+    fig, slug = line.same_as.split("/")
+    return fig, next(other for other in by_id(fig).lines if other.slug == slug)
+
+
+def line_folder(out: Path, figure: Figure, game: str, line: Line) -> Path:
+    fig, own = run_as(figure, line)
+    return out / fig / game / own.slug
+
+
+def sweep_command(
+    figure: Figure, game: str, line: Line, options: argparse.Namespace, runs: int
+) -> list[str]:
+    """The sweep.py command of one line on one game (without the interpreter)."""
+    _, own = run_as(figure, line)
+    command = [*SWEEP, display(AGENTS / own.script), "--out"]
+    command += [str(line_folder(Path(options.out), figure, game, line)), "--runs", str(runs)]
+    command += ["--total-timesteps", str(options.steps), "--seed", str(SEED)]
+    command += ["--backend", options.backend]
+    for flag, value in (("--address", options.address), ("--cpus", options.cpus)):
+        if value is not None:
+            command += [flag, str(value)]
+    command += ["--", "--env", data().env.replace("{game}", game), *shlex.split(data().common)]
+    command += [*own.argv, "--eval-interval", str(options.eval_interval)]
+    command += ["--eval-episodes", str(options.eval_episodes)]
+    return command + ["--num-workers", str(options.num_workers)]
+
+
+def selected(figure: Figure, options: argparse.Namespace) -> tuple[list[str], list[Line]]:
+    games = [g for g in figure.games if not options.games or g in options.games]
+    lines = [line for line in figure.lines if not options.lines or line.slug in options.lines]
+    return games, lines
+
+
+def run_figures(figures: list[Figure], options: argparse.Namespace) -> int:
+    """Run every selected line of the figures, a seed of each at a time locally, then draw."""
+    rounds = range(1, options.seeds + 1) if options.backend == "local" else [options.seeds]
+    failed = []
+    for target in rounds:
+        done: set[Path] = set()  # a shared line's runs are made once per round
+        for figure in figures:
+            games, lines = selected(figure, options)
+            for game in games:
+                for line in lines:
+                    where = line_folder(Path(options.out), figure, game, line)
+                    print(f"== {figure.id} {game} {line.label}: {plural(target, 'seed')}")
+                    if where in done:
+                        continue
+                    done.add(where)
+                    code, _ = execute(sweep_command(figure, game, line, options, target))
+                    if code in (2, 130):
+                        return code
+                    if code == 1 and target == options.seeds:
+                        failed.append(f"{figure.id} {game} {line.label}")
+    for figure in figures:
+        draw(figure, options)
+    if failed:
+        print(f"every run failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+# ------------------------------------------------------------------------------------------------
+# Drawing
+# ------------------------------------------------------------------------------------------------
+def read_runs(folder: Path, episodes: set[str] | None = None) -> dict[int, list[tuple[int, float]]]:
+    """A line's runs: seed -> [(step, mean return)], from OUT/.../runs/run-*/evaluations.csv;
+    the seed is sweep.py's for run i (1 + 1000 i). Adds the episodes per evaluation to
+    episodes."""
+    runs = {}
+    for path in sorted((folder / "runs").glob("run-*/evaluations.csv")):
+        index = int(path.parent.name.removeprefix("run-"))
+        with path.open(newline="") as f:
+            table = list(csv.DictReader(f))
+        if table:
+            runs[SEED + 1000 * index] = [
+                (int(r["global_step"]), float(r["mean_return"])) for r in table
+            ]
+            if episodes is not None:
+                episodes.update(r.get("episodes") or "?" for r in table)
+    return runs
+
+
+def curve(runs: dict[int, list[tuple[int, float]]]) -> list[tuple[int, int, float, float]]:
+    """(step, seeds, mean, standard error) at each step every run has reached."""
+    by_step: dict[int, list[float]] = {}
+    for rows in runs.values():
+        for step, value in rows:
+            by_step.setdefault(step, []).append(value)
+    points = []
+    for step in sorted(by_step):
+        values = by_step[step]
+        if len(values) < len(runs):
+            continue
+        mean = sum(values) / len(values)
+        n = len(values)
+        se = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1) / n) if n > 1 else 0.0
+        points.append((step, n, mean, se))
+    return points
+
+
+def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
+    """OUT/FIG/FIG.png, curves.csv and results.csv from the runs there are; None when none."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(options.out) / figure.id
+    games, lines = selected(figure, options)
+    episodes: set[str] = set()
+    found = {
+        (game, line.slug): read_runs(line_folder(Path(options.out), figure, game, line), episodes)
+        for game in games
+        for line in lines
+    }
+    if not any(found.values()):
+        print(f"{figure.id}: no runs in {display(out)}; not drawn", file=sys.stderr)
+        return None
+    out.mkdir(parents=True, exist_ok=True)
+    results, curves = [], []
+    fig, axes = plt.subplots(1, len(games), figsize=(6.4 * len(games), 4.8), squeeze=False)
+    for ax, game in zip(axes[0], games, strict=True):
+        top = 0
+        for i, line in enumerate(lines):
+            runs = found[game, line.slug]
+            for seed, rows in sorted(runs.items()):
+                step, value = rows[-1]
+                results.append([figure.id, game, line.slug, seed, value, step])
+            points = curve(runs)
+            curves += [[figure.id, game, line.slug, *point] for point in points]
+            if not points:
+                continue
+            steps = [p[0] / 1e6 for p in points]
+            means, ses = [p[2] for p in points], [p[3] for p in points]
+            top = max(top, steps[-1])
+            colour = f"C{i}"
+            label = f"{line.label} ({plural(len(runs), 'seed')})"
+            ax.plot(steps, means, color=colour, marker="o", label=label)
+            low = [m - s for m, s in zip(means, ses, strict=True)]
+            high = [m + s for m, s in zip(means, ses, strict=True)]
+            ax.fill_between(steps, low, high, color=colour, alpha=0.2, linewidth=0)
+        for number in figure.numbers:
+            if number.game != game or number.line not in [line.slug for line in lines]:
+                continue
+            i = [line.slug for line in lines].index(number.line)
+            mid, half = (number.low + number.high) / 2, (number.high - number.low) / 2
+            label = (
+                f"thesis, {number.steps / 1e6:g}M steps: {number.low:g}-{number.high:g} "
+                f"({lines[i].label}, {number.note})"
+            )
+            x = (top or 1) * (1.03 + 0.02 * i)  # beside the curves; apart from each other
+            ax.errorbar([x], [mid], yerr=[half], color=f"C{i}", marker="D", capsize=4,
+                        linestyle="none", label=label)  # fmt: skip
+        ax.set_title(game)
+        ax.set_xlabel("steps (millions)")
+        ax.set_ylabel("mean score per evaluation")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(
+        f"Thesis Figure {figure.id.removeprefix('fig')}: mean over seeds +- one standard error "
+        f"over {'/'.join(sorted(episodes))} episodes per evaluation (the thesis: 5 runs, "
+        f"{THESIS_EPISODES} episodes per evaluation)",
+        fontsize=10,
+    )
+    fig.text(0.01, 0.01, f"thesis: {figure.thesis}", fontsize=7, wrap=True)
+    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    png = out / f"{figure.id}.png"
+    fig.savefig(png, dpi=100)
+    plt.close(fig)
+    write_csv(out / "results.csv", ["figure", "game", "line", "seed", "final_score",
+                                    "final_step"], results)  # fmt: skip
+    write_csv(out / "curves.csv", ["figure", "game", "line", "step", "seeds", "mean", "se"], curves)
+    print(f"wrote {display(png)}, {display(out / 'results.csv')}, {display(out / 'curves.csv')}")
+    return png
+
+
+def write_csv(path: Path, header: list[str], rows: list[list]) -> None:
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows([f"{v:.6g}" if isinstance(v, float) else v for v in row] for row in rows)
+
+
+# ------------------------------------------------------------------------------------------------
+# Command line
+# ------------------------------------------------------------------------------------------------
+def list_figures(figures: list[Figure]) -> str:
+    out = [f"every line: --env {data().env} {data().common} [flags]", ""]
+    for figure in figures:
+        out += [f"{figure.id}  {figure.caption}  (games: {', '.join(figure.games)})"]
+        out += [f"  thesis: {figure.thesis}"]
+        if figure.note:
+            out.append(f"  note: {figure.note}")
+        for line in figure.lines:
+            out.append(f"  - {line.label} [{line.slug}]: {line.script} {line.flags}".rstrip())
+            out.append(f"      source: {line.source}")
+            if line.same_as:
+                out.append(f"      runs: {line.same_as}'s (the same configuration, run once)")
+        for n in figure.numbers:
+            out.append(f"  thesis {n.game} {n.line}: {n.low:g}-{n.high:g} at {n.steps:,} steps "
+                       f"({n.note})")  # fmt: skip
+        out.append("")
+    out.append(
+        f"Every run also gets --eval-interval {EVAL_INTERVAL} --eval-episodes E (the thesis: "
+        f"{THESIS_EPISODES}) --num-workers W, and from sweep.py --total-timesteps, --seed and "
+        "--run-dir."
+    )
+    return "\n".join(out)
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    import os
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    parser = Parser(
+        prog="python -m a3c_tools.atari_figures",
+        usage="%(prog)s FIG [FIG ...] --out OUT --seeds N --steps S [options]\n"
+        "       %(prog)s FIG [FIG ...] --out OUT --plot-only\n"
+        "       %(prog)s --list [FIG ...]",
+        description="Run a thesis Atari figure's lines over seeds through a3c_tools.sweep and "
+        "draw it. See the module docstring for more.",
+    )
+    ids = ", ".join(figure_ids())
+    parser.add_argument("figures", nargs="*", metavar="FIG", help=f"figure ids ({ids}) or all")
+    parser.add_argument("--list", action="store_true", help="print the figures, lines and flags")
+    parser.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
+    parser.add_argument("--plot-only", action="store_true", help="draw the runs there are")
+    parser.add_argument("--out", default=None, help="the output folder (gets OUT/FIG/GAME/LINE)")
+    parser.add_argument("--seeds", type=positive_int, default=None, help="runs per line")
+    parser.add_argument("--steps", type=positive_int, default=None, help="steps per run")
+    parser.add_argument("--games", nargs="+", default=None, help="only these games")
+    parser.add_argument("--lines", nargs="+", default=None, help="only these lines (slugs)")
+    parser.add_argument(
+        "--eval-episodes",
+        type=positive_int,
+        default=EVAL_EPISODES,
+        help=f"episodes per evaluation (default {EVAL_EPISODES}; the thesis {THESIS_EPISODES})",
+    )
+    parser.add_argument(
+        "--eval-interval",
+        type=positive_int,
+        default=EVAL_INTERVAL,
+        help=f"steps between evaluations (default {EVAL_INTERVAL:,}, the thesis's)",
+    )
+    parser.add_argument(
+        "--num-workers",
+        type=positive_int,
+        default=cores,
+        help=f"workers per run (default: this machine's cores, {cores})",
+    )
+    parser.add_argument("--backend", choices=["local", "ray"], default="local")
+    parser.add_argument("--address", default=None, help="with --backend ray: a running cluster")
+    parser.add_argument("--cpus", type=positive_int, default=None, help="passed to sweep.py")
+    options = parser.parse_args(argv)
+    chosen = []
+    for text in options.figures:
+        if text.lower() == "all":
+            chosen += figure_ids()
+            continue
+        found = figure_id(text)
+        if found is None:
+            parser.error(f"unknown figure {text!r}; valid: {ids}, all")
+        chosen.append(found)
+    options.ids = list(dict.fromkeys(chosen))
+    figures = [by_id(i) for i in options.ids] or list(data().figures)
+    games = list(dict.fromkeys(g for figure in figures for g in figure.games))
+    if options.games:
+        by_name = {g.lower(): g for g in games}
+        for game in options.games:
+            if game.lower() not in by_name:
+                named = ", ".join(options.ids) or "the figures"
+                parser.error(f"unknown game {game!r} for {named}; valid: {', '.join(games)}")
+        options.games = [by_name[g.lower()] for g in options.games]
+    if options.lines:
+        slugs = list(dict.fromkeys(line.slug for figure in figures for line in figure.lines))
+        for slug in options.lines:
+            if slug not in slugs:
+                parser.error(f"unknown line {slug!r}; valid: {', '.join(slugs)}")
+    if options.list:
+        return options
+    if not options.ids:
+        parser.error(f"name a figure: {ids}, all (or --list)")
+    needed = ["out"] if options.plot_only else ["out", "seeds", "steps"]
+    missing = [f"--{flag}" for flag in needed if getattr(options, flag) is None]
+    if missing:
+        parser.error(f"the following arguments are required: {', '.join(missing)}")
+    if options.address and options.backend != "ray":
+        parser.error("--address needs --backend ray")
+    return options
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        data()
+    except DataError as error:
+        print(f"atari_figures: error: {error}", file=sys.stderr)
+        return 2
+    options = parse_args(sys.argv[1:] if argv is None else argv)
+    figures = [by_id(i) for i in options.ids] if options.ids else list(data().figures)
+    if options.list:
+        print(list_figures(figures))
+        return 0
+    if options.plot_only:
+        drawn = [draw(figure, options) for figure in figures]
+        return 0 if any(drawn) else 1
+    if options.dry_run:
+        printed = set()
+        for figure in figures:
+            print(f"# {figure.id}: {figure.caption}")
+            games, lines = selected(figure, options)
+            for game in games:
+                for line in lines:
+                    command = shlex.join(
+                        ["python", *sweep_command(figure, game, line, options, options.seeds)]
+                    )
+                    print(f"# (the runs above) {command}" if command in printed else command)
+                    printed.add(command)
+        return 0
+    return run_figures(figures, options)
+
+
+if __name__ == "__main__":
+    run_main(main)
