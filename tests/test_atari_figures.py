@@ -306,7 +306,7 @@ def test_plot_only_without_runs_exits_1_and_draws_nothing(fake, tmp_path):
 def test_a_tiny_real_breakout_line(tmp_path):
     out = tmp_path / "out"
     result = run_tool("fig7.8", "--games", "Breakout", "--lines", "glpq_fig78", "--seeds", "2",
-                      "--steps", "2000", "--eval-interval", "1000", "--eval-episodes", "1",
+                      "--steps", "2000", "--eval-interval", "2000", "--eval-episodes", "1",
                       "--num-workers", "1", "--out", str(out))  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
     with (out / "fig7.8" / "results.csv").open() as f:
