@@ -1,6 +1,7 @@
 """A trained agent playing, as an animated GIF for the docs: one episode of a checkpoint's
 network on the game it was trained on, drawn from the game's own screen (the ALE's 210x160
-frames, Catch's 84x84), the actions sampled from pi as the thesis's evaluations sample them.
+frames, Catch's 84x84), the actions sampled from pi by the evaluations' own loop
+(a3c_runtime.play_episodes).
 
     python -m a3c_tools.record_play results/breakout_a3c_ff/checkpoint.pt \\
         -o docs/img/breakout_a3c_ff.gif --seed 1 --speed 2
@@ -54,6 +55,8 @@ def play_recorded(
 ) -> tuple[list[np.ndarray], float, str]:
     """One episode of the checkpoint's network: the screen before each action and after the
     last, the episode's raw score and the env id."""
+    import gymnasium as gym
+    from a3c_runtime import play_episodes
     from a3c_runtime.checkpoints import load_checkpoint, load_network
     from a3c_runtime.flags import probe_env
 
@@ -66,27 +69,13 @@ def play_recorded(
     load_network(model, checkpoint, path)
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
         model.set_progress(checkpoint["global_step"] / trained.total_timesteps)
-    env = agent.make_env(trained.env, render_mode="rgb_array")
+    # the evaluation's own episode loop; the wrapper keeps the screen after reset and each step
+    env = gym.wrappers.RenderCollection(agent.make_env(trained.env, render_mode="rgb_array"))
     generator = torch.Generator().manual_seed(seed)
-    observation, _ = env.reset(seed=seed)
-    frames = [env.render()]
-    state = model.initial_state(1) if hasattr(model, "initial_state") else None
-    with torch.inference_mode():
-        while True:
-            batch = torch.from_numpy(observation[None])
-            if state is not None:  # a recurrent network: one step (T = 1) with its state
-                log_probs, _, state = model(batch[None], state)
-                log_probs = log_probs[0]
-            else:
-                log_probs = model(batch)[0]
-            probs = log_probs[0].float().exp()
-            sampled = torch.multinomial(probs, 1, generator=generator) if not greedy else None
-            action = int(probs.argmax() if greedy else sampled)
-            observation, _, terminated, truncated, info = env.step(action)
-            frames.append(env.render())
-            if terminated or truncated:
-                env.close()
-                return frames, float(info["episode"]["r"]), trained.env
+    score = play_episodes(model, [env], [seed], greedy=greedy, generator=generator)[0]
+    frames = env.render()
+    env.close()
+    return frames, float(score), trained.env
 
 
 def write_gif(frames: list[np.ndarray], out: Path, fps: int, scale: int = 1) -> None:
