@@ -1,0 +1,272 @@
+"""A campaign: a fixed plan of sweeps, run in priority order over as many sessions as it takes.
+
+    python -m a3c_tools.campaign results/campaign/plan.toml            # run what is left of it
+    python -m a3c_tools.campaign results/campaign/plan.toml --status   # progress only, no run
+    python -m a3c_tools.campaign results/campaign/plan.toml --dry-run  # the commands it would run
+
+The plan (TOML; results/campaign/plan.toml is the thesis's, and its header gives the format) is
+a list of items, each a list of sweeps, decided before the first run so that no verdict is
+tuned to the data. The campaign runs the items in their order, and in each its sweeps, through
+a3c_tools.sweep and a3c_tools.atari_figures: a run already in a sweep's results.csv is skipped,
+one that was cut off resumes from its checkpoint, so the command is the same in every session
+and stopping it (Ctrl-C, SIGTERM, the session's end) loses at most the runs in flight.
+
+Three kinds of item:
+- extend: each of its lines (a committed sweep folder) grows to `runs` runs with the line's own
+  configuration, read from its sweep.json, so runs 0..k-1 are kept and run i draws what it drew
+  before (sweep.py's seeding);
+- repeat: run 0 of a committed line again into a scratch folder and compare its score with the
+  committed one (with one worker a run is exactly repeatable, so a difference means the code
+  computes something else than when the line was made);
+- atari: atari_figures lines of one figure and game over `seeds` seeds of `steps` steps.
+
+After each sweep, and with --status, the progress (runs done of the plan, CPU-hours spent on
+the plan's new runs and an estimate of those left) is written to PROGRESS.md beside the plan.
+CPU-hours are wall time x workers, from the sweeps' results.csv; a run not yet made is
+estimated from its line's finished runs, or from the item's `cpu_hours_per_run`.
+
+Exit codes: 0 when the plan is done, 1 when a sweep failed, 2 for a bad plan (nothing runs),
+130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import shlex
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from a3c_tools import ROOT, run_main
+from a3c_tools import atari_figures as af
+from a3c_tools.thesis_figures import DataError, Parser, execute
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+KINDS = ("extend", "repeat", "atari")
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One sweep of the plan: its folder, the runs it must have, and the command that makes
+    them (without the interpreter)."""
+
+    out: Path
+    runs: int
+    command: list[str]
+    first_look: int  # runs the folder held when the plan was fixed (not the campaign's)
+    source: Path  # the committed line whose runs estimate the cost of this one's
+
+
+@dataclass(frozen=True)
+class Item:
+    id: str
+    kind: str
+    title: str
+    sweeps: list[Sweep]
+    cpu_hours_per_run: float | None
+
+
+def read_rows(out: Path) -> list[dict]:
+    path = out / "results.csv"
+    if not path.is_file():
+        return []
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def workers(row: dict) -> int:
+    words = shlex.split(row.get("flags") or "")
+    for flag, value in zip(words, words[1:], strict=False):
+        if flag in ("--num-workers", "--num_workers"):
+            return int(value)
+    return 1
+
+
+def extend_command(script: str, out: Path, runs: int, where: str, source: Path) -> list[str]:
+    """The sweep.py command that grows a line in `out` to `runs` runs with the configuration of
+    the committed line in `source` (its sweep.json)."""
+    config_path = source / "sweep.json"
+    if not config_path.is_file():
+        raise DataError(f"{where}: {source} has no sweep.json")
+    config = json.loads(config_path.read_text())
+    if Path(script).name != config["script"]:
+        raise DataError(f"{where}: {source} is a sweep of {config['script']}, not {script}")
+    command = ["-m", "a3c_tools.sweep", script, "--out", str(out), "--runs", str(runs)]
+    command += ["--seed", str(config["seed"])]
+    if config.get("total_timesteps") is not None:
+        command += ["--total-timesteps", str(config["total_timesteps"])]
+    for sample in config["samples"]:
+        command += ["--sample", sample]
+    return command + ["--", *config["fixed_flags"]]
+
+
+def read_item(entry: dict, index: int, plan: Path) -> Item:
+    where = f"{plan}: item {index + 1}"
+    try:
+        kind, item_id, title = entry["kind"], entry["id"], entry["title"]
+    except KeyError as missing:
+        raise DataError(f"{where} has no {missing.args[0]}") from None
+    if kind not in KINDS:
+        raise DataError(f"{where}: kind {kind!r}; valid: {', '.join(KINDS)}")
+    sweeps = []
+    if kind == "extend":
+        for line in entry.get("lines", []):
+            out = Path(line["out"])
+            source = Path(line.get("config_from", line["out"]))
+            command = extend_command(line["script"], out, int(entry["runs"]), where, source)
+            first_look = int(line.get("first_look", 0))
+            sweeps.append(Sweep(out, int(entry["runs"]), command, first_look, source))
+    elif kind == "repeat":
+        scratch = Path(entry["out"])
+        command = extend_command(entry["script"], scratch, 1, where, Path(entry["source"]))
+        sweeps.append(Sweep(scratch, 1, command, 0, Path(entry["source"])))
+    else:
+        figure = af.by_id(entry["figure"])
+        options = argparse.Namespace(
+            out=entry["out"], steps=int(entry["steps"]), backend="local", address=None,
+            cpus=None, eval_interval=af.EVAL_INTERVAL, eval_episodes=af.EVAL_EPISODES,
+            num_workers=int(entry["num_workers"]),
+        )  # fmt: skip
+        lines = {line.slug: line for line in figure.lines}
+        for slug in entry["lines"]:
+            if slug not in lines:
+                raise DataError(f"{where}: {figure.id} has no line {slug}; valid: {list(lines)}")
+            line, game, seeds = lines[slug], entry["game"], int(entry["seeds"])
+            command = af.sweep_command(figure, game, line, options, seeds)
+            out = af.line_folder(Path(entry["out"]), figure, game, line)
+            sweeps.append(Sweep(out, seeds, command, 0, out))
+    if not sweeps:
+        raise DataError(f"{where} has no sweep")
+    per_run = entry.get("cpu_hours_per_run")
+    return Item(item_id, kind, title, sweeps, None if per_run is None else float(per_run))
+
+
+def load_plan(plan: Path) -> list[Item]:
+    try:
+        data = tomllib.loads(plan.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        raise DataError(f"{plan}: {error}") from None
+    items = [read_item(e, i, plan) for i, e in enumerate(data.get("item", []))]
+    ids = [item.id for item in items]
+    if len(set(ids)) != len(ids):
+        raise DataError(f"{plan}: item ids repeat: {ids}")
+    return items
+
+
+def progress(items: list[Item]) -> tuple[str, bool]:
+    """The progress table (markdown) and whether every sweep of the plan is done."""
+    lines = ["| item | runs done of plan | CPU-hours spent | CPU-hours left (est.) |"]
+    lines.append("|---|---|---|---|")
+    total_done = total_plan = 0
+    total_spent = total_left = 0.0
+    seen: set[Path] = set()
+    for item in items:
+        done = plan = 0
+        spent = left = 0.0
+        for sweep in item.sweeps:
+            if sweep.out in seen:  # a line shared by two items counts once, in the first
+                continue
+            seen.add(sweep.out)
+            rows = read_rows(sweep.out)
+            new_rows = rows[sweep.first_look :][: sweep.runs - sweep.first_look]
+            cost = [float(r["wall_time_s"] or 0) * workers(r) / 3600 for r in rows]
+            known = cost or [
+                float(r["wall_time_s"] or 0) * workers(r) / 3600 for r in read_rows(sweep.source)
+            ]
+            per_run = sum(known) / len(known) if known else (item.cpu_hours_per_run or 0.0)
+            done += len(new_rows)
+            plan += max(sweep.runs - sweep.first_look, 0)
+            spent += sum(cost[sweep.first_look :][: sweep.runs - sweep.first_look])
+            left += per_run * max(sweep.runs - max(len(rows), sweep.first_look), 0)
+        lines.append(f"| {item.id}: {item.title} | {done} of {plan} | {spent:.1f} | {left:.1f} |")
+        total_done, total_plan = total_done + done, total_plan + plan
+        total_spent, total_left = total_spent + spent, total_left + left
+    lines.append(
+        f"| **all** | **{total_done} of {total_plan}** | **{total_spent:.1f}** | "
+        f"**{total_left:.1f}** |"
+    )
+    return "\n".join(lines) + "\n", total_done >= total_plan
+
+
+def repeat_report(items: list[Item], plan: Path) -> str:
+    """The repeat items' verdicts: run 0 again against the committed run 0."""
+    data = tomllib.loads(plan.read_text())
+    report = []
+    for entry in data.get("item", []):
+        if entry["kind"] != "repeat":
+            continue
+        again, before = read_rows(Path(entry["out"])), read_rows(Path(entry["source"]))
+        if not again:
+            report.append(f"- {entry['id']}: not run yet")
+            continue
+        a, b = float(again[0]["score"]), float(before[0]["score"])
+        same = "identical" if a == b else f"differs by {a - b:+.4f}"
+        report.append(f"- {entry['id']}: run 0 again {a:.4f}, committed {b:.4f}: {same}")
+    return "\n".join(report) + "\n" if report else ""
+
+
+def write_progress(items: list[Item], plan: Path) -> bool:
+    table, finished = progress(items)
+    text = f"# Campaign progress ({plan.name})\n\nWritten by `python -m a3c_tools.campaign "
+    text += f"{plan.as_posix()}` after each sweep.\n\n{table}"
+    repeats = repeat_report(items, plan)
+    if repeats:
+        text += f"\nRepeated runs (run 0 of a committed line, again):\n\n{repeats}"
+    (plan.parent / "PROGRESS.md").write_text(text)
+    return finished
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = Parser(
+        prog="python -m a3c_tools.campaign",
+        description="Run what is left of a campaign's plan, in its order (resumable).",
+    )
+    parser.add_argument("plan", type=Path, help="the plan (e.g. results/campaign/plan.toml)")
+    parser.add_argument("--status", action="store_true", help="write and print the progress only")
+    parser.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    options = parse_args(sys.argv[1:] if argv is None else argv)
+    options.plan = options.plan.resolve()
+    os.chdir(ROOT)  # the plan's folders are the repository's
+    try:
+        items = load_plan(options.plan)
+    except DataError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if options.dry_run:
+        for item in items:
+            for sweep in item.sweeps:
+                print(shlex.join(["python", *sweep.command]))
+        return 0
+    if options.status:
+        write_progress(items, options.plan)
+        print((options.plan.parent / "PROGRESS.md").read_text(), end="")
+        return 0
+    failed = False
+    for item in items:
+        for sweep in item.sweeps:
+            if len(read_rows(sweep.out)) >= sweep.runs:
+                continue
+            print(f"== {item.id}: {sweep.out}: to {sweep.runs} runs", flush=True)
+            code, _ = execute(sweep.command)
+            write_progress(items, options.plan)
+            if code in (2, 130):
+                return code
+            failed |= code != 0
+    finished = write_progress(items, options.plan)
+    print((options.plan.parent / "PROGRESS.md").read_text(), end="")
+    return 1 if failed else 0 if finished else 1
+
+
+if __name__ == "__main__":
+    run_main(main)
