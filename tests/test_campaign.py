@@ -1,0 +1,198 @@
+"""Tests of a3c_tools.campaign (a fixed plan of sweeps, run in order over sessions) and of the
+committed plan, results/campaign/plan.toml.
+
+The runs go through the real sweep.py with a stand-in agent script that writes its evaluations
+at once; the committed plan is checked against the committed lines it extends.
+"""
+
+import csv
+import json
+import shlex
+import textwrap
+from pathlib import Path
+
+import pytest
+from a3c_tools import campaign, sweep
+from conftest import ROOT, run_main
+
+PLAN = ROOT / "results" / "campaign" / "plan.toml"
+
+FAKE_AGENT = textwrap.dedent(
+    """
+    import argparse, json, os
+
+    parser = argparse.ArgumentParser()
+    for flag in ("--learning-rate", "--eval-interval", "--num-workers", "--total-timesteps",
+                 "--seed", "--run-dir", "--resume"):
+        parser.add_argument(flag)
+    args = parser.parse_args()
+    run_dir = os.path.dirname(args.resume) if args.resume else args.run_dir
+    saved = json.load(open(args.resume)) if args.resume else vars(args)
+    here = os.path.dirname(os.path.abspath(__file__))
+    with open(os.path.join(here, "starts.log"), "a") as f:
+        f.write(os.path.basename(run_dir) + "\\n")
+    json.dump(saved, open(os.path.join(run_dir, "checkpoint.pt"), "w"))
+    score = float(saved["learning_rate"]) * 100 + int(saved["seed"]) % 7 / 10
+    with open(os.path.join(run_dir, "evaluations.csv"), "w") as f:
+        f.write("global_step,wall_time_s,mean_return,std_return,episodes\\n")
+        for step in range(0, int(saved["total_timesteps"]) + 1, int(saved["eval_interval"])):
+            f.write(f"{step},0.1,{score},0.0,5\\n")
+    """
+)
+
+
+@pytest.fixture
+def line(tmp_path):
+    """A committed line of 2 runs, made by sweep.py with the stand-in agent."""
+    agents = tmp_path / "agents"
+    agents.mkdir()
+    (agents / "a3c_ff.py").write_text(FAKE_AGENT)
+    out = tmp_path / "line"
+    args = [str(agents / "a3c_ff.py"), "--out", str(out), "--runs", "2", "--seed", "1",
+            "--total-timesteps", "100", "--sample", "learning-rate=loguniform:1e-5:1e-2",
+            "--", "--eval-interval", "50"]  # fmt: skip
+    assert run_main(sweep.main, args).returncode == 0
+    (agents / "starts.log").unlink()
+    return out
+
+
+def write_plan(tmp_path: Path, items: str) -> Path:
+    plan = tmp_path / "plan" / "plan.toml"
+    plan.parent.mkdir(exist_ok=True)
+    plan.write_text(textwrap.dedent(items))
+    return plan
+
+
+def starts(line: Path) -> list[str]:
+    log = line.parent / "agents" / "starts.log"
+    return log.read_text().split() if log.exists() else []
+
+
+def rows(folder: Path) -> list[dict]:
+    with (folder / "results.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_extend_keeps_the_first_runs_adds_the_rest_and_resumes(line, tmp_path):
+    before = rows(line)
+    agent = line.parent / "agents" / "a3c_ff.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "a1"
+        title = "the line to 4 runs"
+        kind = "extend"
+        runs = 4
+        lines = [{{ script = "{agent}", out = "{line}", first_look = 2 }}]
+        """,
+    )
+    result = run_main(campaign.main, [str(plan)])
+    assert result.returncode == 0, result.stderr
+    assert starts(line) == ["run-0002", "run-0003"]  # the first look's runs are kept
+    after = rows(line)
+    assert after[:2] == before and len(after) == 4
+    # run i draws what a 4-run sweep of the same configuration draws
+    fresh = sweep.plan_runs(json.loads((line / "sweep.json").read_text()), 4)
+    assert [r["learning-rate"] for r in after] == [r.sampled["learning-rate"] for r in fresh]
+    progress = (plan.parent / "PROGRESS.md").read_text()
+    assert "| a1: the line to 4 runs | 2 of 2 |" in progress
+    assert "**2 of 2**" in progress
+    # the same command again: nothing left to run
+    (line.parent / "agents" / "starts.log").unlink()
+    assert run_main(campaign.main, [str(plan)]).returncode == 0
+    assert starts(line) == []
+
+
+def test_progress_counts_a_shared_line_once_and_estimates_what_is_left(line, tmp_path):
+    agent = line.parent / "agents" / "a3c_ff.py"
+    entry = f'{{ script = "{agent}", out = "{line}", first_look = 2 }}'
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "a1"
+        title = "to 3"
+        kind = "extend"
+        runs = 3
+        lines = [{entry}]
+
+        [[item]]
+        id = "a2"
+        title = "to 3 again"
+        kind = "extend"
+        runs = 3
+        lines = [{entry}]
+        """,
+    )
+    result = run_main(campaign.main, [str(plan), "--status"])
+    assert result.returncode == 0, result.stderr
+    assert starts(line) == []  # --status runs nothing
+    walls = [float(r["wall_time_s"]) / 3600 for r in rows(line)]
+    left = f"{sum(walls) / len(walls):.1f}"
+    assert f"| a1: to 3 | 0 of 1 | 0.0 | {left} |" in result.stdout
+    assert "| a2: to 3 again | 0 of 0 | 0.0 | 0.0 |" in result.stdout
+    assert "**0 of 1**" in result.stdout
+
+
+def test_repeat_runs_run_0_again_and_compares_its_score(line, tmp_path):
+    agent = line.parent / "agents" / "a3c_ff.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "a0"
+        title = "run 0 again"
+        kind = "repeat"
+        script = "{agent}"
+        source = "{line}"
+        out = "{tmp_path / "again"}"
+        """,
+    )
+    assert run_main(campaign.main, [str(plan)]).returncode == 0
+    assert rows(tmp_path / "again")[0]["score"] == rows(line)[0]["score"]
+    assert "run 0 again" in (plan.parent / "PROGRESS.md").read_text()
+    assert ": identical" in (plan.parent / "PROGRESS.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        ('kind = "other"\nid = "x"\ntitle = "t"', "kind 'other'; valid: extend, repeat, atari"),
+        ('kind = "extend"\ntitle = "t"', "has no id"),
+        ('kind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
+         'lines = [{ script = "agents/a3c_ff.py", out = "NOWHERE" }]', "NOWHERE has no sweep.json"),
+        ('kind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
+         'lines = [{ script = "agents/a3c_lws.py", out = "LINE" }]', "a sweep of a3c_ff.py, not"),
+        ('kind = "atari"\nid = "x"\ntitle = "t"\nfigure = "fig6.10"\ngame = "Pong"\n'
+         'lines = ["vf2"]\nseeds = 3\nsteps = 10\nnum_workers = 1\nout = "o"', "has no line vf2"),
+    ],
+)  # fmt: skip
+def test_a_bad_plan_exits_2_with_one_line_and_runs_nothing(line, tmp_path, body, message):
+    plan = write_plan(tmp_path, "[[item]]\n" + body.replace("LINE", str(line)) + "\n")
+    result = run_main(campaign.main, [str(plan)])
+    assert result.returncode == 2
+    assert len(result.stderr.splitlines()) == 1 and message in result.stderr, result.stderr
+    assert starts(line) == [] and not (plan.parent / "PROGRESS.md").exists()
+
+
+def test_the_committed_plan_extends_each_line_with_its_own_configuration():
+    items = campaign.load_plan(PLAN)
+    extended = [s for item in items if item.kind == "extend" for s in item.sweeps]
+    assert len(extended) == 14
+    for planned in extended:
+        source = planned.out if planned.first_look else Path(str(planned.out).replace("_f32", ""))
+        config = json.loads((ROOT / source / "sweep.json").read_text())
+        command = planned.command
+        fixed = command[command.index("--") + 1 :]
+        assert fixed == config["fixed_flags"], planned.out
+        assert command[command.index("--seed") + 1] == str(config["seed"])
+        assert command[command.index("--total-timesteps") + 1] == str(config["total_timesteps"])
+        assert [command[i + 1] for i, w in enumerate(command) if w == "--sample"] == config[
+            "samples"
+        ]
+        if planned.first_look:  # the first look is what the folder held when the plan was fixed
+            assert len(rows(ROOT / planned.out)) >= planned.first_look
+    atari = [s for item in items if item.kind == "atari" for s in item.sweeps]
+    assert {shlex.join(s.command[:2]) for s in atari} == {"-m a3c_tools.sweep"}
+    assert all(s.runs == 3 for s in atari)
