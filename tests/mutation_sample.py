@@ -184,6 +184,14 @@ def main() -> int:
         print(f"{len(population)} mutants in the targets; {args.size} drawn with seed {args.seed}")
         results_path = args.out / "results.tsv"
         done = {r["id"] for r in read_rows(results_path)}
+        if "baseline" not in done:  # the unmutated fast tier must pass, or nothing is measured
+            status, failed, seconds = run_pytest(scratch, (), args.timeout)
+            if status != "survived":
+                print(f"the unmutated fast tier does not pass ({status} {failed})", file=sys.stderr)
+                return 2
+            row = {"id": "baseline", "status": "passes", "seconds": f"{seconds:.0f}",
+                   "caught_by": ""}  # fmt: skip
+            write_rows(results_path, [row], append=True)
         every = sorted(
             p.relative_to(scratch).as_posix() for p in (scratch / "tests").glob("test_*.py")
         )
@@ -208,6 +216,8 @@ def main() -> int:
     results = {r["id"]: r for r in read_rows(results_path)}
     counts: dict[str, int] = {}
     for r in results.values():
+        if r["id"] == "baseline":
+            continue
         key = r["status"]
         if key == "caught" and any(r["caught_by"].startswith(t) for t in LAST):
             key = "caught by lint or drift only"
