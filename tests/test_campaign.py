@@ -89,7 +89,7 @@ def test_extend_keeps_the_first_runs_adds_the_rest_and_resumes(line, tmp_path):
     )
     result = run_main(campaign.main, [str(plan)])
     assert result.returncode == 0, result.stderr
-    assert starts(line) == ["run-0002", "run-0003"]  # the first look's runs are kept
+    assert sorted(starts(line)) == ["run-0002", "run-0003"]  # the first look's runs are kept
     after = rows(line)
     assert after[:2] == before and len(after) == 4
     # run i draws what a 4-run sweep of the same configuration draws
@@ -98,6 +98,11 @@ def test_extend_keeps_the_first_runs_adds_the_rest_and_resumes(line, tmp_path):
     progress = (plan.parent / "PROGRESS.md").read_text()
     assert "| a1: the line to 4 runs | 2 of 2 |" in progress
     assert "**2 of 2**" in progress
+    with (plan.parent / "SWEEPS.tsv").open(newline="") as f:
+        (logged,) = list(csv.DictReader(f, delimiter="\t"))
+    assert (logged["item"], logged["out"]) == ("a1", str(line))
+    assert (logged["runs_before"], logged["runs_after"]) == ("2", "4")
+    assert logged["cpu"] and int(logged["cores"]) >= 1 and float(logged["wall_s"]) >= 0
     # the same command again: nothing left to run
     (line.parent / "agents" / "starts.log").unlink()
     assert run_main(campaign.main, [str(plan)]).returncode == 0

@@ -20,6 +20,8 @@ Three kinds of item:
   computes something else than when the line was made);
 - atari: atari_figures lines of one figure and game over `seeds` seeds of `steps` steps.
 
+Each sweep invocation adds a row to SWEEPS.tsv beside the plan: its item, folder, start and end
+(UTC), wall time, the runs it held before and after, and the CPU model and cores that ran it.
 After each sweep, and with --status, the progress (runs done of the plan, CPU-hours spent on
 the plan's new runs and an estimate of those left) is written to PROGRESS.md beside the plan.
 CPU-hours are wall time x workers, from the sweeps' results.csv; a run not yet made is
@@ -35,8 +37,10 @@ import argparse
 import csv
 import json
 import os
+import platform
 import shlex
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -223,6 +227,32 @@ def write_progress(items: list[Item], plan: Path) -> bool:
     return finished
 
 
+def cpu_model() -> str:
+    """The CPU's model name (lscpu's), for the record of where each run ran."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def log_sweep(plan: Path, item: Item, sweep: Sweep, before: int, started: float) -> None:
+    """Append to SWEEPS.tsv beside the plan what one sweep invocation did: when, on which CPU
+    (and how many cores), and the runs its folder held before and after."""
+    path = plan.parent / "SWEEPS.tsv"
+    stamp = "%Y-%m-%d %H:%M:%S"
+    row = [item.id, str(sweep.out), time.strftime(stamp, time.gmtime(started)),
+           time.strftime(stamp, time.gmtime()), f"{time.time() - started:.0f}", str(before),
+           str(len(read_rows(sweep.out))), cpu_model(), str(os.cpu_count())]  # fmt: skip
+    header = "item\tout\tstarted_utc\tended_utc\twall_s\truns_before\truns_after\tcpu\tcores\n"
+    with path.open("a") as f:
+        if f.tell() == 0:
+            f.write(header)
+        f.write("\t".join(row) + "\n")
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = Parser(
         prog="python -m a3c_tools.campaign",
@@ -258,7 +288,9 @@ def main(argv: list[str] | None = None) -> int:
             if len(read_rows(sweep.out)) >= sweep.runs:
                 continue
             print(f"== {item.id}: {sweep.out}: to {sweep.runs} runs", flush=True)
+            before, started = len(read_rows(sweep.out)), time.time()
             code, _ = execute(sweep.command)
+            log_sweep(options.plan, item, sweep, before, started)
             write_progress(items, options.plan)
             if code in (2, 130):
                 return code
