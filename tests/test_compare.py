@@ -445,3 +445,15 @@ def test_a_tiny_comparison_end_to_end(tmp_path):
     assert (out / "comparison.png").stat().st_size > 10_000
     again = run_main(compare.main, argv)
     assert again.returncode == 0 and again.stdout.startswith("# a3c_ff.py --activation elu")
+
+
+@pytest.mark.parametrize(
+    "tool", ["atari_report", "compare", "thesis_claims", "thesis_figures", "atari_figures", "sweep"]
+)
+def test_the_tools_help_prints_single_percent_signs(tool):
+    import importlib
+
+    module = importlib.import_module(f"a3c_tools.{tool}")
+    done = run_main(module.main, ["--help"])
+    assert done.returncode == 0 and "usage" in done.stdout
+    assert "%%" not in done.stdout and "%(" not in done.stdout

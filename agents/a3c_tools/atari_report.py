@@ -302,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m a3c_tools.atari_report",
         description="The Atari lines across seeds and games: the IQM and mean of "
-        "human-normalised scores, per game the mean over seeds, each mean with a 95%% "
+        "human-normalised scores, per game the mean over seeds, each mean with a 95% "
         "Student-t interval over seeds (none below 3 seeds, none for the IQM), and a "
         "performance-profile figure.",
     )
