@@ -5,9 +5,11 @@ Two sweeps with the same --seed and samples give run i the same sampled values a
 (a3c_tools.sweep), so their runs pair up by run_id. The effect is the mean over the paired runs
 of d = other - base, with a Student-t interval on the paired differences: mean(d) +-
 t(n - 1) sd(d) / sqrt(n) at 95% (`scipy.stats.t`). Its coverage is exact at every n for normal
-differences, and holds at 93% or more from 3 pairs up when the two lines' runs come from one
-distribution however skewed, bimodal or heavy-tailed (the differences of exchangeable runs are
-symmetric): tests/test_compare.py simulates both at n = 2, 3, 5, 8, 20. A bootstrap interval
+differences, and held at 93% or more from 3 pairs up in simulation when the two lines' runs
+come from one skewed, bimodal or heavy-tailed distribution (the differences of exchangeable
+runs are symmetric; the t interval is conservative for symmetric heavy tails):
+tests/test_compare.py simulates Catch-like bimodal, lognormal and t(2) scores at n = 2, 3, 5,
+8, 20. A bootstrap interval
 does not hold its level at these n: over 2 or 3 runs it is about the spread of the points.
 No method holds a mean's coverage for differences that are skewed at so few runs (Bahadur and
 Savage 1956); such differences would mean the lines differ, if not in their mean.
