@@ -56,6 +56,19 @@ def test_list_names_every_figure_line_and_flag():
         assert text in result.stdout, text
 
 
+def test_a_dry_run_needs_only_the_figure(tmp_path):
+    result = run_tool("fig7.8", "--games", "Breakout", "--dry-run", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    rows = result.stdout.splitlines()
+    assert rows[0] == "# OUT stands for --out, SEEDS stands for --seeds, STEPS stands for --steps"
+    command = shlex.split(next(row for row in rows if row.startswith("python -m a3c_tools.sweep")))
+    assert command[command.index("--runs") + 1] == "SEEDS"
+    assert command[command.index("--total-timesteps") + 1] == "STEPS"
+    assert list(tmp_path.iterdir()) == []
+    real = run_tool("fig7.8", "--seeds", "1", cwd=tmp_path)
+    assert real.returncode == 2 and "required: --out, --steps" in real.stderr
+
+
 @pytest.mark.parametrize("figure", ["fig6.9", "fig6.10", "fig7.8"])
 def test_dry_run_prints_a_sweep_per_game_and_line(figure, tmp_path):
     out = tmp_path / "out"

@@ -1,6 +1,7 @@
-"""Tests of a3c_tools.atari_report (the Atari lines across seeds and games, with rliable): the
-human normalisation by hand, the evaluation that scores a run, the IQM against a hand computation,
-the report on the committed runs, bad input, and the page's tables against the tool's."""
+"""Tests of a3c_tools.atari_report (the Atari lines across seeds and games): the human
+normalisation by hand, the evaluation that scores a run, the IQM and the t intervals against a
+hand computation, no interval below 3 seeds, the report on the committed runs, bad input, and
+the page's tables against the tool's."""
 
 import csv
 
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 from a3c_tools import atari_report as report
 from conftest import ROOT, run_main
+from scipy import stats
 
 # the tools extra; imported here, once (arch, pandas, statsmodels: about 1.5 s), not in a test
 pytest.importorskip("rliable.library")
@@ -85,18 +87,31 @@ def test_the_iqm_is_the_mean_of_the_middle_half(tmp_path):
     config = write_config(tmp_path / "r.toml", {"A": (0, 1), "B": (0, 1)}, [("l", runs)])
     _, lines = report.load(config)
     assert report.score_matrix(lines[0]).shape == (4, 2)  # rliable's runs x games
-    report.estimate(lines, reps=200, seed=0)
+    report.estimate(lines)
     line = lines[0]
-    assert line.iqm[0] == pytest.approx((0.5 + 0.7 + 0.9 + 1.5) / 4)
+    assert line.iqm == pytest.approx((0.5 + 0.7 + 0.9 + 1.5) / 4)
     assert line.mean[0] == pytest.approx(sum(values["A"] + values["B"]) / 8)
-    assert line.iqm[1] <= line.iqm[0] <= line.iqm[2]
-    assert line.game_means[0][0] == pytest.approx(np.mean(values["A"]))
-    # the same seed, the same intervals, and NumPy's global generator left as it was
-    state = np.random.get_state()[1].copy()  # noqa: NPY002 (rliable resamples with it)
-    _, again = report.load(config)
-    report.estimate(again, reps=200, seed=0)
-    assert again[0].iqm == line.iqm and again[0].game_means == line.game_means
-    assert (np.random.get_state()[1] == state).all()  # noqa: NPY002
+    # the line's mean: a t interval over the 4 seeds' means over the 2 games
+    per_seed = (np.array(values["A"]) + np.array(values["B"])) / 2
+    expected = stats.t.interval(0.95, 3, loc=per_seed.mean(), scale=stats.sem(per_seed))
+    assert line.mean[1:] == pytest.approx(expected)
+    # a game's mean: a t interval over its 4 seeds
+    game = np.array(values["A"])
+    expected = stats.t.interval(0.95, 3, loc=game.mean(), scale=stats.sem(game))
+    assert line.game_means[0] == pytest.approx((game.mean(), *expected))
+
+
+def test_below_three_seeds_no_interval_is_given(tmp_path):
+    folders = []
+    for seed, score in enumerate([10.0, 30.0]):
+        folders.append(tmp_path / f"run{seed}")
+        write_evaluations(folders[-1], [(0, 0.0), (1000, score)])
+    config = write_config(tmp_path / "r.toml", {"A": (0, 100)}, [("l", {"A": ("final", folders)})])
+    done = run_main(report.main, ["--config", str(config)])
+    assert done.returncode == 0, done.stderr
+    assert "| 20.0 (no interval below 3 seeds) |" in done.stdout
+    assert "| 0.20 (no interval below 3 seeds) |" in done.stdout
+    assert "[" not in done.stdout.split("| A | the final evaluation |")[1].split(") |")[-1]
 
 
 def committed_score(folder, step):
@@ -107,7 +122,7 @@ def committed_score(folder, step):
 
 def test_the_report_on_the_committed_runs_gives_their_scores(tmp_path):
     figure = tmp_path / "profile.png"
-    done = run_main(report.main, ["--reps", "50", "--figure", str(figure)])
+    done = run_main(report.main, ["--figure", str(figure)])
     assert done.returncode == 0, done.stderr
     assert figure.stat().st_size > 10_000
     with open(report.CONFIG, "rb") as f:
@@ -125,8 +140,10 @@ def test_the_report_on_the_committed_runs_gives_their_scores(tmp_path):
     # Breakout's final evaluations and Pong's at 5M steps, seeds 1 / 2 / 3
     assert "[349.0](" in done.stdout and "[411.9](" in done.stdout and "[15.6](" in done.stdout
     middle = sorted(normalised)[1:-1]  # 6 runs: the 25% trimmed mean drops one at each end
-    assert f"| {line['label']} | Breakout, Pong x 3 | {np.mean(middle):.2f} [" in done.stdout
+    assert f"| {line['label']} | Breakout, Pong x 3 | {np.mean(middle):.2f} | " in done.stdout
     assert f"| {np.mean(normalised):.2f} [" in done.stdout
+    assert "| 375.9 [295.4, 456.4] |" in done.stdout  # Breakout: a t interval, not the seeds'
+    assert "bootstrap" not in done.stdout
     assert "| Breakout | 1.7 | 30.5 |" in done.stdout and "| Pong | -20.7 | 14.6 |" in done.stdout
 
 
@@ -141,7 +158,7 @@ def test_bad_input_is_one_line_and_exit_code_2(tmp_path, runs, message):
     config = write_config(
         tmp_path / "r.toml", {"Pong": (-20.7, 14.6)}, [("x", {"Pong": (7_000_000, runs)})]
     )
-    done = run_main(report.main, ["--config", str(config), "--reps", "10"])
+    done = run_main(report.main, ["--config", str(config)])
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr.count("\n") == 1 and done.stderr.startswith("error: ")
     assert message in done.stderr
@@ -160,7 +177,7 @@ def test_a_game_without_normalisation_scores_is_refused(tmp_path):
 
 @pytest.mark.slow
 def test_the_atari_page_and_the_committed_report_hold_the_tools_tables():
-    """With rliable's default resamples (about 25 s on 2 cores)."""
+    """The page's tables and the committed report are the tool's."""
     done = run_main(report.main, ["--links-from", "docs"])
     assert done.returncode == 0, done.stderr
     assert done.stdout in (ROOT / "docs" / "atari.md").read_text(), (

@@ -1,5 +1,6 @@
-"""Tests of agents/a3c_tools/compare.py and agents/a3c_tools/paired.py (the pairing, the BCa
-interval and the verdict, shared with the claims page).
+"""Tests of agents/a3c_tools/compare.py and agents/a3c_tools/paired.py (the pairing, the t
+interval, its coverage at the runs a comparison rests on, and the verdict, shared with the claims
+page).
 
 The fast tier trains nothing: the comparisons run the real agent scripts' sweeps with the
 sweep's execute_run replaced by a stand-in that writes an evaluations.csv at once, and the
@@ -8,6 +9,7 @@ slow tier."""
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +17,7 @@ import pytest
 from a3c_tools import compare, paired, sweep
 from a3c_tools import thesis_claims as claims
 from conftest import ROOT, run_main
+from scipy import stats
 
 FF = "agents/a3c_ff.py"
 LPQ = "agents/a3c_lpq.py"
@@ -59,22 +62,103 @@ def test_the_margin_of_comparable_is_a_parameter():
     assert paired.verdict("comparable", 0.2, 0.15, 0.25, 8, margin=0.1) == "contradicted"
 
 
-def test_an_inconclusive_verdict_states_the_runs_that_would_decide_it():
-    # half-width 0.1 against an effect of 0.05: the interval must shrink 2x, so 4x the runs
-    assert paired.verdict("better", 0.05, -0.05, 0.15, 8) == (
-        "inconclusive: about 32 runs per line would decide it"
-    )
+@pytest.mark.parametrize("confidence", [0.95, 0.975])
+def test_an_inconclusive_verdict_states_the_runs_that_would_decide_it(confidence):
+    # half-width 0.1 at 8 runs against an effect of 0.05: the fewest runs n whose
+    # t(n - 1) s / sqrt(n), with the spread s measured at 8, is below 0.05
+    call = paired.verdict("better", 0.05, -0.05, 0.15, 8, confidence=confidence)
+    needed = int(re.fullmatch(r"inconclusive: about (\d+) runs per line would decide it", call)[1])
+    q = stats.t.ppf(0.5 + confidence / 2, np.arange(1, 400))  # df 1.. for n = 2..
+    spread = 0.1 * np.sqrt(8) / q[8 - 2]
+
+    def half(n: int) -> float:
+        return q[n - 2] * spread / np.sqrt(n)
+
+    assert half(needed) < 0.05 <= half(needed - 1)
+    assert needed < 32  # fewer than the 4x of 1 / sqrt(runs) alone: t(n - 1) falls as n grows
     assert "would not decide it" in paired.verdict("better", 0.0, -0.1, 0.1, 8)
 
 
-def test_the_interval_is_scipys_paired_bca_bootstrap_of_the_mean():
+def test_the_interval_is_the_student_t_interval_of_the_paired_differences():
     rng = np.random.default_rng(1)
-    differences = rng.normal(0.3, 0.1, size=200)
-    low, high = paired.interval(differences)
-    assert low < differences.mean() < high
-    half = 1.96 * differences.std(ddof=1) / np.sqrt(len(differences))
-    assert high - low == pytest.approx(2 * half, rel=0.15)  # the normal interval, large n
+    for n in (3, 8, 20):
+        differences = rng.normal(0.3, 0.1, size=n)
+        expected = stats.t.interval(0.95, n - 1, loc=differences.mean(),
+                                    scale=stats.sem(differences))  # fmt: skip
+        assert paired.interval(differences) == pytest.approx(expected)
+        wider = stats.t.interval(0.975, n - 1, loc=differences.mean(),
+                                 scale=stats.sem(differences))  # fmt: skip
+        assert paired.interval(differences, 0.975) == pytest.approx(wider)
     assert paired.interval(np.full(5, 0.2)) == (0.2, 0.2)
+
+
+def no_effect_scores(rng: np.random.Generator, kind: str, shape: tuple[int, int]) -> np.ndarray:
+    """One line's scores under no effect: both lines are drawn alike, so their runs are
+    exchangeable. "catch": bimodal and skewed like Catch sweeps (a run learns, to about 0.9, at
+    some learning rates, else stays near random play's 0.2); "lognormal": skewed; "t2":
+    heavy-tailed (Student t with 2 degrees of freedom, no variance)."""
+    if kind == "catch":
+        learned = rng.random(shape) < 0.4
+        return np.where(learned, rng.normal(0.9, 0.05, shape), rng.normal(0.22, 0.03, shape))
+    if kind == "lognormal":
+        return rng.lognormal(0.0, 1.0, shape)
+    return rng.standard_t(2, shape)
+
+
+@pytest.mark.parametrize("n", [2, 3, 5, 8, 20])
+def test_with_no_true_effect_the_interval_covers_0_and_the_verdicts_are_rare(n):
+    """2,000 comparisons with no effect at each n: normal differences, and lines drawn from one
+    skewed, bimodal or heavy-tailed distribution. The 95% interval covers 0 in 93% of them or
+    more (Monte Carlo error about 0.5%), and neither directional verdict (the "better" of
+    --expect better, the "worse" of --expect worse) is given in more than 5%. Below MIN_PAIRS
+    no verdict is given at all."""
+    rng = np.random.default_rng(52 + n)
+    draws = 2_000
+    samples = {"normal": rng.normal(0.0, 0.1, (draws, n))}
+    for kind in ("catch", "lognormal", "t2"):
+        samples[kind] = no_effect_scores(rng, kind, (draws, n)) - no_effect_scores(
+            rng, kind, (draws, n)
+        )
+    for kind, differences in samples.items():
+        effect, low, high = paired.t_intervals(differences)
+        calls = [paired.verdict("better", *row, n).partition(":")[0]
+                 for row in zip(effect, low, high, strict=True)]  # fmt: skip
+        if n < paired.MIN_PAIRS:
+            assert set(calls) == {"no verdict"}
+            if kind == "normal":  # the interval itself: exact for normal differences
+                assert np.mean((low <= 0) & (high >= 0)) >= 0.93
+            continue
+        covers = np.mean((low <= 0) & (high >= 0))
+        assert covers >= 0.93, (kind, covers)
+        better, worse = calls.count("reproduced") / draws, calls.count("contradicted") / draws
+        assert better <= 0.05 and worse <= 0.05, (kind, better, worse)
+        assert better + worse == pytest.approx(1 - covers, abs=1e-9)
+
+
+def test_a_comparison_of_two_lines_at_random_play_gives_no_verdict(tmp_path):
+    ids = [f"run-{i:04d}" for i in range(4)]
+    base = write_table(
+        tmp_path / "base",
+        [(r, "ok", s) for r, s in zip(ids, [0.208, 0.212, 0.216, 0.22], strict=True)],
+    )
+    other = write_table(
+        tmp_path / "other",
+        [(r, "ok", s) for r, s in zip(ids, [0.24, 0.244, 0.248, 0.25], strict=True)],
+    )
+    done = run_main(compare.main, ["--from", str(base), str(other)])
+    assert done.returncode == 0, done.stderr
+    assert "**+0.032 [+0.030, +0.033]**" in done.stdout  # an interval off 0, but ...
+    assert "Verdict: **no verdict: both lines at random play (Catch-v0: about 0.2" in done.stdout
+    assert "reproduced" not in done.stdout and "better (" not in done.stdout
+    # one run that learned in either line: a verdict again
+    result = paired.pair(dict(zip(ids, [0.208, 0.212, 0.216, 0.22], strict=True)),
+                         dict(zip(ids, [0.24, 0.244, 0.248, 0.7], strict=True)))  # fmt: skip
+    assert result.at_random_play() is None
+    # an Atari game's random score, from atari_report.toml
+    pong = paired.pair(dict(zip(ids, [-20.5, -20.7, -20.1, -20.9], strict=True)),
+                       dict(zip(ids, [-19.9, -20.0, -19.5, -20.2], strict=True)),
+                       env_id="PongNoFrameskip-v4")  # fmt: skip
+    assert pong.verdict("better").startswith("no verdict: both lines at random play (Pong")
 
 
 @pytest.mark.parametrize(
@@ -109,29 +193,35 @@ def test_runs_pair_by_run_id_leaving_out_failed_and_missing_runs(tmp_path):
             ("run-0001", "ok", 0.6),
             ("run-0002", "failed", 0.0),
             ("run-0003", "ok", 0.4),
+            ("run-0004", "ok", 0.5),
         ],
     )
     other = write_table(tmp_path / "other", [("run-0001", "ok", 0.8), ("run-0000", "ok", 0.7),
-                                             ("run-0002", "ok", 0.9)])  # fmt: skip
+                                             ("run-0002", "ok", 0.9),
+                                             ("run-0004", "ok", 0.7)])  # fmt: skip
     scores = [paired.read_scores(folder / "results.csv") for folder in (base, other)]
-    assert set(scores[0]) == {"run-0000", "run-0001", "run-0003"}  # the failed run is no score
+    assert set(scores[0]) == {"run-0000", "run-0001", "run-0003", "run-0004"}  # failed: no score
     result = paired.pair(*scores)
-    assert result.run_ids == ["run-0000", "run-0001"]  # 2 failed in base, 3 missing in other
-    assert list(result.other - result.base) == pytest.approx([0.2, 0.2])
+    assert result.run_ids == ["run-0000", "run-0001", "run-0004"]  # 2 failed, 3 missing
+    assert list(result.other - result.base) == pytest.approx([0.2, 0.2, 0.2])
     assert result.shown() == "+0.200 [+0.200, +0.200]"
-    assert paired.pair({"run-0000": 0.1}, {"run-0000": 0.2}) is None  # one pair: no interval
+    assert paired.pair(*scores, run_ids=["run-0000", "run-0001", "run-0003"]) is None  # 2 pairs
     done = run_main(compare.main, ["--from", str(base), str(other), "--score", "score_all"])
     assert done.returncode == 0, done.stderr
-    assert "**+0.100 [+0.100, +0.100]**, the mean over 2 paired runs" in done.stdout
+    assert "**+0.100 [+0.100, +0.100]**, the mean over 3 paired runs" in done.stdout
     assert "left out, failed or missing in a line: run-0002, run-0003" in done.stdout
 
 
-def test_fewer_than_two_pairs_give_no_interval_and_exit_1(tmp_path):
-    base = write_table(tmp_path / "base", [("run-0000", "ok", 0.5), ("run-0001", "failed", 0)])
-    other = write_table(tmp_path / "other", [("run-0000", "ok", 0.7), ("run-0001", "ok", 0.7)])
+def test_fewer_than_three_pairs_give_no_interval_and_no_verdict_and_exit_1(tmp_path):
+    ids = ["run-0000", "run-0001", "run-0002"]
+    base = write_table(tmp_path / "base", [(ids[0], "ok", 0.5), (ids[1], "ok", 0.4),
+                                           (ids[2], "failed", 0)])  # fmt: skip
+    other = write_table(tmp_path / "other", [(i, "ok", 0.7) for i in ids])
     done = run_main(compare.main, ["--from", str(base), str(other), "--out", str(tmp_path / "o")])
-    assert done.returncode == 1 and "fewer than 2 paired runs" in done.stderr
+    assert done.returncode == 1, done.stdout
+    assert "fewer than 3 paired runs (ok in both lines): no interval and no verdict" in done.stderr
     assert not (tmp_path / "o").exists()
+    assert paired.verdict("better", 0.2, 0.1, 0.3, 2).startswith("no verdict: 2 paired runs")
 
 
 def test_the_committed_lpq_growth_comparison_gives_the_claims_pages_numbers(tmp_path):
@@ -141,13 +231,15 @@ def test_the_committed_lpq_growth_comparison_gives_the_claims_pages_numbers(tmp_
                if claim.get("line") == COMMITTED[1]]  # fmt: skip
     _, effect, verdict = claims.evidence(claim)
     assert (effect, verdict) == (
-        "+0.063 [-0.073, +0.238]",
-        "inconclusive: about 91 runs per line would decide it",
-    )  # as docs/claims.md shows them
+        "+0.063 [-0.141, +0.267] (n = 15, 97.5% t); first look (n = 5, 95% t): "
+        "+0.161 [-0.270, +0.592]",
+        "inconclusive: about 128 runs per line would decide it",
+    )  # as docs/claims.md shows them: the row was extended from 5 runs to 15, a second look
     out = tmp_path / "cmp"
-    done = run_main(compare.main, ["--from", *COMMITTED, "--out", str(out)])
+    done = run_main(compare.main, ["--from", *COMMITTED, "--second-look", "--out", str(out)])
     assert done.returncode == 0, done.stderr
-    assert f"**{effect}**, the mean over 15 paired runs" in done.stdout
+    second = effect.split(" (n = ")[0]
+    assert f"**{second}**, the mean over 15 paired runs with its 97.5% t interval" in done.stdout
     assert f"Verdict: **{verdict} (expecting other better than base)**" in done.stdout
     # the line means and standard errors of docs/future-work.md
     assert "| 15 of 15 | 0.755 +- 0.064 |" in done.stdout
@@ -160,7 +252,7 @@ def test_the_committed_lpq_growth_comparison_gives_the_claims_pages_numbers(tmp_
     ), "python -m a3c_tools.compare --from ... (results/future_work_catch/COMMAND.txt)"
     assert (out / "comparison.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # --from without --out prints and writes nothing
-    again = run_main(compare.main, ["--from", *COMMITTED])
+    again = run_main(compare.main, ["--from", *COMMITTED, "--second-look"])
     assert again.stdout.split("Command:")[0] == done.stdout.split("Command:")[0]
     assert "wrote" not in again.stdout
 
@@ -270,6 +362,8 @@ NOT_AGENT = "agents/a3c_tools/sweep.py"
         ([FF, LPQ, "--steps", "1000", "--eval-interval", "400"], "use --steps >= 2000"),
         ([FF, LPQ, "--margin", "0"], "argument --margin: must be > 0"),
         ([FF, LPQ, "--expect", "maybe"], "invalid choice: 'maybe'"),
+        ([FF, LPQ, "--runs", "1"], "--runs must be >= 3 (got 1)"),
+        ([FF, LPQ, "--runs", "2"], "--runs must be >= 3 (got 2)"),
         ([FF], "name two agent scripts"),
         ([FF, LPQ, "--from", *COMMITTED], "--from analyses sweeps already run: BASE OTHER"),
         (["--from", COMMITTED[0], "results/sweep_catch/a3c_ff"], "the two sweeps do not pair"),
@@ -302,7 +396,7 @@ def test_the_flag_sets_reach_their_own_line_only(stand_in, tmp_path):
         "--other-flags",
         "--prototypes-per-action 4",
         "--runs",
-        "2",
+        "3",
         "--fast",
         "--steps",
         "6400",
@@ -332,22 +426,34 @@ def test_an_interrupted_sweep_stops_the_comparison_with_130(stand_in, tmp_path, 
 
 @pytest.mark.slow
 def test_a_tiny_comparison_end_to_end(tmp_path):
-    """Two configurations of a3c_ff.py, 2 runs each of 2,000 steps, 1 worker: both lines run
+    """Two configurations of a3c_ff.py, 3 runs each of 2,000 steps, 1 worker: both lines run
     at the same learning rates and seeds, the result is written, and a second start runs
     nothing."""
     out = tmp_path / "cmp"
-    argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "2", "--steps", "2000",
+    argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", "2000",
             "--eval-episodes", "2", "--cpus", "2", "--out", str(out)]  # fmt: skip
     done = run_main(compare.main, argv)
     assert done.returncode == 0, done.stdout + done.stderr
     base, other = table(out / "base"), table(out / "other")
-    assert sorted(base) == sorted(other) == ["run-0000", "run-0001"]
+    assert sorted(base) == sorted(other) == ["run-0000", "run-0001", "run-0002"]
     for run_id, row in base.items():
         assert row["status"] == other[run_id]["status"] == "ok", (row, other[run_id])
         assert row["learning-rate"] == other[run_id]["learning-rate"]
         assert row["seed"] == other[run_id]["seed"]
         assert int(row["evaluations"]) >= 6 and int(row["final_step"]) >= 2000
-    assert "the mean over 2 paired runs" in done.stdout and "Verdict: **" in done.stdout
+    assert "the mean over 3 paired runs" in done.stdout and "Verdict: **" in done.stdout
     assert (out / "comparison.png").stat().st_size > 10_000
     again = run_main(compare.main, argv)
     assert again.returncode == 0 and again.stdout.startswith("# a3c_ff.py --activation elu")
+
+
+@pytest.mark.parametrize(
+    "tool", ["atari_report", "compare", "thesis_claims", "thesis_figures", "atari_figures", "sweep"]
+)
+def test_the_tools_help_prints_single_percent_signs(tool):
+    import importlib
+
+    module = importlib.import_module(f"a3c_tools.{tool}")
+    done = run_main(module.main, ["--help"])
+    assert done.returncode == 0 and "usage" in done.stdout
+    assert "%%" not in done.stdout and "%(" not in done.stdout

@@ -1,12 +1,16 @@
 """Tests of a3c_tools.thesis_claims (docs/claims.md from the committed results): the page and its
 forest plot hold what the script makes of the data, the plot draws the page's rows, and the
-handling of lines not run yet. The verdict rule and the paired bootstrap, a3c_tools.paired's,
-are tested in test_compare.py."""
+handling of lines not run yet, and the looks: a row rests on its first look's runs, an extended
+row on its second look at 97.5% once both lines hold its runs. The verdict rule and the paired
+t interval, a3c_tools.paired's, are tested in test_compare.py."""
 
 import csv
 import dataclasses
 import re
 
+import numpy as np
+import pytest
+from a3c_tools import paired
 from a3c_tools import thesis_claims as claims  # noqa: E402
 from conftest import ROOT, run_main
 
@@ -70,15 +74,16 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
         if line.startswith("## "):
             section = line[3:]
         cells = line.split(" | ")
-        if line.startswith("| ") and re.fullmatch(r"[+-]\d\.\d{3} \[.*\]", cells[-2]):
-            rows.append((section, cells[-2], cells[-1].split("**")[1]))
+        shown = re.match(r"[+-]\d\.\d{3} \[[^]]*\]", cells[-2]) if len(cells) > 2 else None
+        if line.startswith("| ") and shown:  # the decisive look's interval comes first
+            rows.append((section, shown[0], cells[-1].split("**")[1]))
     points = claims.plotted(ROOT / "docs" / claims.FIGURE)
     drawn = [(p.section, f"{p.effect:+.3f} [{p.low:+.3f}, {p.high:+.3f}]", p.verdict)
              for p in points]  # fmt: skip
     assert drawn == rows and len(rows) >= 25
     assert all(point.colour == claims.COLOURS[point.verdict] for point in points)
-    assert set(claims.COLOURS) == {"reproduced", "contradicted", "inconclusive"}
-    assert len(set(claims.COLOURS.values())) == 3  # one colour to each verdict
+    assert set(claims.COLOURS) == {"reproduced", "contradicted", "inconclusive", "no verdict"}
+    assert len(set(claims.COLOURS.values())) == 4  # one colour to each verdict
     # the caption counts the table rows left off: every row, less the heads, less those drawn
     left_off = text.count("\n| ") - text.count("\n|---") - len(rows)
     assert f"*The {len(rows)} rows with an interval" in text
@@ -144,3 +149,95 @@ def test_the_page_opens_with_a_tally_of_its_verdicts():
     assert f"**At a glance**: {len(heads)} rows: " in page
     for head in set(heads):
         assert f"{heads.count(head)} {head}" in page.split("**At a glance**")[1].split("\n")[0]
+
+
+def write_line(folder, values, statuses=None):
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "results.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["run_id", "status", "score", "score_all"])
+        for i, value in enumerate(values):
+            status = statuses[i] if statuses else "ok"
+            writer.writerow([f"run-{i:04d}", status, value, value / 2])
+
+
+def test_a_row_rests_on_its_first_look_and_an_extended_row_on_its_second(tmp_path, monkeypatch):
+    monkeypatch.setattr(claims, "ROOT", tmp_path)
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.4, 0.8, 15)
+    gain = np.r_[rng.normal(0.02, 0.05, 8), rng.normal(0.06, 0.02, 7)]  # runs 8.. are clearer
+    write_line(tmp_path / "base", base)
+    write_line(tmp_path / "line", (base + gain)[:11])  # the shared line grew to 11 runs
+    claim = {"baseline": "base", "line": "line", "names": ["B", "L"], "expect": "better",
+             "command": "make it"}  # fmt: skip
+    # not extended: runs 0..7 only, whatever else the lines hold
+    ours, effect, verdict = claims.evidence(claim)
+    low, high = paired.interval(gain[:8])
+    assert "n = 8 paired runs" in ours
+    assert effect == f"{gain[:8].mean():+.3f} [{low:+.3f}, {high:+.3f}]"
+    first_effect, first_verdict = effect, verdict
+    assert claims.evidence({**claim, "runs": 5})[1].startswith(f"{gain[:5].mean():+.3f} [")
+    # extended to 15, the line at 11: the first look's numbers and verdict, and the extension
+    extended = {**claim, "extend": {"runs": 15}}
+    ours, effect, verdict = claims.evidence(extended)
+    assert (effect, "n = 8 paired runs" in ours) == (first_effect, True)
+    assert verdict == f"{first_verdict}; extension to 15 runs in progress (campaign)"
+    # both lines at 15 runs (one failed: still finished): the second look, at 97.5%
+    write_line(tmp_path / "line", base + gain, ["ok"] * 14 + ["failed"])
+    ours, effect, verdict = claims.evidence(extended)
+    low, high = paired.interval(gain[:14], 0.975)
+    assert "n = 14 paired runs" in ours and "in progress" not in verdict
+    assert effect == (f"{gain[:14].mean():+.3f} [{low:+.3f}, {high:+.3f}] (n = 14, 97.5% t); "
+                      f"first look (n = 8, 95% t): {first_effect}")  # fmt: skip
+    assert verdict == paired.verdict("better", gain[:14].mean(), low, high, 14,
+                                     confidence=0.975)  # fmt: skip
+    # a second look on new folders (the first look's lines kept as they are)
+    write_line(tmp_path / "base2", base)
+    write_line(tmp_path / "line2", base - 0.3)
+    anew = {**claim, "extend": {"runs": 15, "baseline": "base2", "line": "line2"}}
+    ours, effect, verdict = claims.evidence(anew)
+    assert "[line2](../line2/results.csv)" in ours and verdict == "contradicted"
+    assert effect.endswith(f"first look (n = 8, 95% t): {first_effect}")
+    # the page: the verdict's head in bold, the rest after it
+    data = {"intro": "# Claims", "outro": "## End", "section": [{"title": "S", "claim": [
+        {**extended, "claim": "c", "where": "Fig 1", "form": "as run", "thesis": "t"},
+        {**anew, "claim": "c", "where": "Fig 2", "form": "as run", "thesis": "t"}]}]}  # fmt: skip
+    write_line(tmp_path / "line", (base + gain)[:11])
+    page = claims.render(data)
+    assert f"**{claims.head_of(first_verdict)}**" in page and "; extension to 15 runs" in page
+    assert "| **contradicted** |" in page
+
+
+def test_two_looks_give_a_row_with_no_effect_a_directional_verdict_rarely():
+    """The campaign's rule, simulated: 2,000 rows with no effect; the first look at 8 runs and
+    95%; a row inconclusive there whose estimate is at most 24 runs per line is extended to that
+    estimate and judged again at 97.5%. A directional verdict at either look: at most 5% + 2.5%
+    (Bonferroni), and 95% then 95% would give more."""
+    rng = np.random.default_rng(50)
+    draws, first, most = 2_000, 8, 24
+    differences = rng.normal(0.0, 0.1, (draws, most))
+    effect, low, high = paired.t_intervals(differences[:, :first])
+    decided = (low > 0) | (high < 0)
+    again = {0.975: decided.copy(), 0.95: decided.copy()}
+    for i in np.flatnonzero(~decided):
+        n = paired.runs_to_decide(abs(effect[i]), (high[i] - low[i]) / 2, first)
+        if n is None or n > most:
+            continue
+        for level, rows in again.items():
+            _, low2, high2 = paired.t_intervals(differences[i, :n], level)
+            rows[i] = bool((low2 > 0) | (high2 < 0))
+    assert decided.mean() <= 0.065  # the first look alone: about 5%
+    assert again[0.975].mean() <= 0.075
+    assert again[0.95].mean() > again[0.975].mean()
+
+
+@pytest.mark.parametrize("folder", ["results/future_work_catch/lpq_growth"])
+def test_the_committed_extended_row_shows_both_looks(folder):
+    with open(claims.CLAIMS, "rb") as f:
+        data = claims.tomllib.load(f)
+    [claim] = [
+        c for section in data["section"] for c in section["claim"] if c.get("line") == folder
+    ]
+    assert claim["runs"] == 5 and claim["extend"]["runs"] == 15
+    _, effect, _ = claims.evidence(claim)
+    assert "(n = 15, 97.5% t); first look (n = 5, 95% t): " in effect

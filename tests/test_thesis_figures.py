@@ -328,6 +328,25 @@ def test_a_dry_run_into_a_closed_pipe_ends_quietly_creating_nothing(tmp_path):
     assert not out.exists()
 
 
+def test_a_dry_run_needs_only_the_figure(tmp_path):
+    """What --out, --runs and --steps would fill in is printed as OUT, RUNS and STEPS, and said
+    so; a real run still needs them."""
+    result = run_tool("--dry-run", "fig7.6", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    rows = result.stdout.splitlines()
+    assert rows[0] == "# OUT stands for --out, RUNS stands for --runs, STEPS stands for --steps"
+    command = shlex.split(next(row for row in rows if row.startswith("python -m a3c_tools.sweep")))
+    assert command[command.index("--runs") + 1] == "RUNS"
+    assert command[command.index("--total-timesteps") + 1] == "STEPS"
+    assert command[command.index("--eval-interval") + 1] == "STEPS/20"
+    assert command[command.index("--out") + 1].startswith("OUT/fig")
+    given = run_tool("--dry-run", "fig7.6", "--runs", "2", "--steps", "1000", "--out", "x")
+    assert "stands for" not in given.stdout
+    assert list(tmp_path.iterdir()) == []
+    real = run_tool("fig7.6", "--runs", "2", cwd=tmp_path)
+    assert real.returncode == 2 and "required: --out, --steps" in real.stderr
+
+
 def test_dry_run_prints_a_shared_sweep_once():
     """A line that several figures share is one sweep: the dry run prints its command once and
     marks its repeats, so the printed commands are what a run of `all` would start."""

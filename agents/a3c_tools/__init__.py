@@ -12,13 +12,13 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
   results (thesis_claims.toml);
 - `compare`: two scripts, or one with two flag sets, at the same learning rates and run seeds:
   the paired effect, its 95% interval, a verdict and a figure (docs/testing-your-idea.md); it
-  and `thesis_claims` share `paired` (the pairing, the bootstrap interval, the verdict rule);
+  and `thesis_claims` share `paired` (the pairing, the t interval, the verdict rule);
 - `future_work_summary`, `future_work_initial_policy`, `future_work_trained_scale`,
   `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch);
 - `training_scalars`: a run's TensorBoard training scalars by 1M steps;
 - `record_play`: a checkpoint's agent playing one episode, as an animated GIF;
-- `atari_report`: the Atari lines across seeds and games with rliable (the IQM with stratified
-  bootstrap intervals, a performance profile; its lines are data: atari_report.toml).
+- `atari_report`: the Atari lines across seeds and games (the IQM, means with t intervals over
+  seeds, a performance profile drawn with rliable; its lines are data: atari_report.toml).
 
 Nothing runs at import; the tools' own dependencies (matplotlib, scipy, rliable) are the `tools`
 extra.

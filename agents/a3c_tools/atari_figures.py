@@ -469,6 +469,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         prog="python -m a3c_tools.atari_figures",
         usage="%(prog)s FIG [FIG ...] --out OUT --seeds N --steps S [options]\n"
         "       %(prog)s FIG [FIG ...] --out OUT --plot-only\n"
+        "       %(prog)s FIG [FIG ...] --dry-run [--out OUT] [--seeds N] [--steps S] [options]\n"
         "       %(prog)s --list [FIG ...]",
         description="Run a thesis Atari figure's lines over seeds through a3c_tools.sweep and "
         "draw it. See the module docstring for more.",
@@ -533,7 +534,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         return options
     if not options.ids:
         parser.error(f"name a figure: {ids}, all (or --list)")
-    needed = ["out"] if options.plot_only else ["out", "seeds", "steps"]
+    needed = ["out"] if options.plot_only else [] if options.dry_run else ["out", "seeds", "steps"]
     missing = [f"--{flag}" for flag in needed if getattr(options, flag) is None]
     if missing:
         parser.error(f"the following arguments are required: {', '.join(missing)}")
@@ -557,6 +558,12 @@ def main(argv: list[str] | None = None) -> int:
         drawn = [draw(figure, options) for figure in figures]
         return 0 if any(drawn) else 1
     if options.dry_run:
+        missing = {flag: flag.upper() for flag in ("out", "seeds", "steps")
+                   if getattr(options, flag) is None}  # fmt: skip
+        for flag, text in missing.items():
+            setattr(options, flag, text)
+        if missing:
+            print("# " + ", ".join(f"{text} stands for --{flag}" for flag, text in missing.items()))
         printed = set()
         for figure in figures:
             print(f"# {figure.id}: {figure.caption}")

@@ -1,4 +1,4 @@
-"""The Atari lines across seeds and games, with rliable: docs/atari.md's "Across seeds and games".
+"""The Atari lines across seeds and games: docs/atari.md's "Across seeds and games".
 
     python -m a3c_tools.atari_report                      # the tables, Markdown, on stdout
     python -m a3c_tools.atari_report -o results/atari_report/report.md \\
@@ -13,34 +13,35 @@ evaluation with step = "final".
 
 Scores are human-normalised per game, (score - random) / (human - random), with the random and
 human scores the TOML gives. Per line, over its games and seeds: the interquartile mean (IQM,
-the mean of the middle half of the runs' scores) and the mean, each with a 95% stratified
-bootstrap interval (rliable's get_interval_estimates: seeds resampled within each game,
-percentile intervals). Per game: the mean raw score over seeds with a 95% bootstrap interval, and
-each seed's score. `--figure` draws the lines' performance profiles (rliable's
-create_performance_profile: the fraction of runs scoring above each normalised score tau, with
-its 95% band) with rliable's plot_utils.
+the mean of the middle half of the runs' scores, rliable's aggregate_iqm) and the mean, the
+mean with a 95% Student-t interval over seeds (of each seed's mean over the games). Per game:
+the mean raw score over seeds with its 95% t interval, and each seed's score. No interval is
+given below MIN_SEEDS seeds, and none for the IQM: a bootstrap (rliable's stratified one, or a
+percentile interval of a game's mean) over 3 seeds does not hold its level; with 3 seeds a
+percentile bootstrap's interval is the lowest and highest seed. The t interval's coverage is
+exact for normal scores at any number of seeds (a3c_tools.paired gives the method). `--figure`
+draws the lines' performance profiles (the fraction of runs scoring above each normalised
+score tau, as rliable's create_performance_profile computes it, without its bootstrap band)
+with rliable's plot_utils.
 
-rliable draws its resamples from NumPy's global generator (StratifiedBootstrap ignores its
-random_state), so each estimate here is made under np.random.seed(--seed), the generator's
-state restored afterwards: the same input gives the same intervals. Bad input (a missing run
-folder or evaluation, an unknown game) is one line, exit code 2.
+The report is deterministic: nothing is resampled. Bad input (a missing run folder or
+evaluation, an unknown game) is one line, exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import csv
 import math
 import os
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from a3c_tools import ROOT, run_main
+from a3c_tools.paired import MIN_PAIRS
 
 try:
     import tomllib
@@ -49,9 +50,8 @@ except ModuleNotFoundError:  # Python 3.10
 
 CONFIG = Path(__file__).with_name("atari_report.toml")
 MARK_SLACK = 1_000  # an evaluation this many steps past a mark or fewer is the mark's
-INTERVAL_REPS = 50_000  # rliable's default resamples for get_interval_estimates
-PROFILE_REPS = 2_000  # and for create_performance_profile
 CONFIDENCE = 0.95
+MIN_SEEDS = MIN_PAIRS  # fewer seeds: no interval
 
 
 class ReportError(Exception):
@@ -73,8 +73,8 @@ class GameRuns:
 class Line:
     label: str
     games: list[GameRuns]
-    iqm: tuple[float, float, float] = (math.nan,) * 3  # (point, low, high), human-normalised
-    mean: tuple[float, float, float] = (math.nan,) * 3
+    iqm: float = math.nan  # human-normalised
+    mean: tuple[float, float, float] = (math.nan,) * 3  # (point, low, high), human-normalised
     game_means: tuple[tuple[float, float, float], ...] = ()  # per game, raw scores
 
 
@@ -166,22 +166,12 @@ def load(config: Path) -> tuple[dict[str, tuple[float, float]], list[Line]]:
     return games, lines
 
 
-@contextlib.contextmanager
-def seeded(seed: int) -> Iterator[None]:
-    """NumPy's global generator seeded (rliable resamples with it), its state kept."""
-    state = np.random.get_state()  # noqa: NPY002 (rliable's resamples use the legacy generator)
-    np.random.seed(seed)  # noqa: NPY002
-    try:
-        yield
-    finally:
-        np.random.set_state(state)  # noqa: NPY002
-
-
-def t_interval(scores: list[float]) -> tuple[float, float]:
-    """The 95% Student-t interval of the mean of a few seeds' scores ((nan, nan) for one)."""
+def t_interval(scores: list[float] | np.ndarray) -> tuple[float, float]:
+    """The 95% Student-t interval of the mean of a few seeds' scores ((nan, nan) below
+    MIN_SEEDS)."""
     from scipy import stats
 
-    if len(scores) < 2:
+    if len(scores) < MIN_SEEDS:
         return math.nan, math.nan
     mean, half = float(np.mean(scores)), float(stats.sem(scores))
     half *= float(stats.t.ppf(0.5 + CONFIDENCE / 2, len(scores) - 1))
@@ -193,38 +183,27 @@ def score_matrix(line: Line) -> np.ndarray:
     return np.array([g.normalised for g in line.games]).T
 
 
-def estimate(lines: list[Line], reps: int | None, seed: int) -> None:
-    """Each line's IQM and mean over games and seeds and each game's mean over seeds, with
-    their 95% stratified bootstrap intervals (rliable), into the lines."""
-    from rliable import library as rly
+def estimate(lines: list[Line]) -> None:
+    """Each line's IQM and mean over games and seeds (the mean with its 95% t interval over
+    seeds) and each game's mean over seeds with its 95% t interval, into the lines."""
     from rliable import metrics
 
-    def iqm_and_mean(scores: np.ndarray) -> np.ndarray:
-        return np.array([metrics.aggregate_iqm(scores), metrics.aggregate_mean(scores)])
-
-    def mean(scores: np.ndarray) -> np.ndarray:
-        return np.array([metrics.aggregate_mean(scores)])
-
-    reps = reps or INTERVAL_REPS
     for line in lines:
-        with seeded(seed):
-            points, intervals = rly.get_interval_estimates(
-                {line.label: score_matrix(line)}, iqm_and_mean, reps=reps,
-                confidence_interval_size=CONFIDENCE,
-            )  # fmt: skip
-        point, (low, high) = points[line.label], intervals[line.label]
-        line.iqm = (point[0], low[0], high[0])
-        line.mean = (point[1], low[1], high[1])
-        game_means = []
-        for game in line.games:
-            with seeded(seed):
-                points, intervals = rly.get_interval_estimates(
-                    {game.game: np.array(game.scores)[:, None]}, mean, reps=reps,
-                    confidence_interval_size=CONFIDENCE,
-                )  # fmt: skip
-            (low,), (high,) = intervals[game.game]
-            game_means.append((float(points[game.game][0]), float(low), float(high)))
-        line.game_means = tuple(game_means)
+        matrix = score_matrix(line)
+        line.iqm = float(metrics.aggregate_iqm(matrix))
+        per_seed = matrix.mean(axis=1)  # each seed's mean over the games
+        line.mean = (float(per_seed.mean()), *t_interval(per_seed))
+        line.game_means = tuple(
+            (float(np.mean(game.scores)), *t_interval(game.scores)) for game in line.games
+        )
+
+
+def shown(point: float, low: float, high: float, digits: int) -> str:
+    """A mean with its interval, "375.9 [295.4, 456.4]", or the mean alone with "(no interval:
+    n seeds)" where there are too few seeds for one."""
+    if math.isnan(low):
+        return f"{point:.{digits}f} (no interval below {MIN_SEEDS} seeds)"
+    return f"{point:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
 def steps_text(step: int | str) -> str:
@@ -238,50 +217,46 @@ def link(folder: Path, links_from: Path) -> str:
 def render(games: dict[str, tuple[float, float]], lines: list[Line], links_from: Path) -> str:
     """The report's three Markdown tables: per line, per line and game, the normalisation."""
     out = [
-        "| line | games x seeds | IQM, human-normalised [95% CI] "
-        "| mean, human-normalised [95% CI] |",
+        "| line | games x seeds | IQM, human-normalised (no interval) "
+        "| mean, human-normalised [95% t CI over seeds] |",
         "|---|---|---:|---:|",
     ]
     for line in lines:
         names = ", ".join(g.game for g in line.games)
-        iqm, mean = line.iqm, line.mean
         out.append(
             f"| {line.label} | {names} x {len(line.games[0].scores)} "
-            f"| {iqm[0]:.2f} [{iqm[1]:.2f}, {iqm[2]:.2f}] "
-            f"| {mean[0]:.2f} [{mean[1]:.2f}, {mean[2]:.2f}] |"
+            f"| {line.iqm:.2f} | {shown(*line.mean, 2)} |"
         )
     out += [
         "",
         "| line | game | a run's score | seeds' scores (seed 1 / 2 / ...) "
-        "| mean [95% bootstrap CI] | [95% t CI] | human-normalised, per seed |",
-        "|---|---|---|---:|---:|---:|---:|",
+        "| mean [95% t CI] | human-normalised, per seed |",
+        "|---|---|---|---:|---:|---:|",
     ]
     for line in lines:
-        for game, (point, low, high) in zip(line.games, line.game_means, strict=True):
+        for game, mean in zip(line.games, line.game_means, strict=True):
             seeds = " / ".join(
                 f"[{score:.1f}]({link(folder, links_from)})"
                 for score, folder in zip(game.scores, game.folders, strict=True)
             )
             normalised = " / ".join(f"{n:.2f}" for n in game.normalised)
-            t_low, t_high = t_interval(game.scores)
-            t_text = "-" if math.isnan(t_low) else f"[{t_low:.1f}, {t_high:.1f}]"
             out.append(
                 f"| {line.label} | {game.game} | {steps_text(game.step)} | {seeds} "
-                f"| {point:.1f} [{low:.1f}, {high:.1f}] | {t_text} | {normalised} |"
+                f"| {shown(*mean, 1)} | {normalised} |"
             )
     out += ["", "| game | random | human |", "|---|---:|---:|"]
     out += [f"| {game} | {random:g} | {human:g} |" for game, (random, human) in games.items()]
     return "\n".join(out) + "\n"
 
 
-def plot_profile(lines: list[Line], path: Path, reps: int | None, seed: int) -> None:
-    """The lines' performance profiles (score distributions over runs and games) with their
-    95% stratified bootstrap bands, drawn by rliable's plot_utils."""
+def plot_profile(lines: list[Line], path: Path) -> None:
+    """The lines' performance profiles (score distributions over runs and games), drawn by
+    rliable's plot_utils, without a band (a bootstrap band over 3 seeds a game does not hold
+    its level)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from rliable import library as rly
     from rliable import plot_utils
 
     scores = {
@@ -291,14 +266,13 @@ def plot_profile(lines: list[Line], path: Path, reps: int | None, seed: int) -> 
     }
     top = max(float(m.max()) for m in scores.values())
     tau = np.linspace(0.0, max(1.5, math.ceil(top * 1.05)), 601)
-    with seeded(seed):
-        profiles, bands = rly.create_performance_profile(
-            scores, tau, reps=reps or PROFILE_REPS, confidence_interval_size=CONFIDENCE
-        )
+    # the fraction of a line's runs scoring above each tau (rliable's score distribution)
+    profiles = {label: (m.ravel()[None, :] > tau[:, None]).mean(axis=1)
+                for label, m in scores.items()}  # fmt: skip
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
     colours = {label: f"C{i}" for i, label in enumerate(scores)}
     plot_utils.plot_performance_profiles(
-        profiles, tau, performance_profile_cis=bands, colors=colours, ax=ax,
+        profiles, tau, performance_profile_cis=None, colors=colours, ax=ax,
         xlabel=r"human-normalised score $\tau$", ylabel=r"fraction of runs with score $> \tau$",
         labelsize="large", ticklabelsize="medium",
     )  # fmt: skip
@@ -314,7 +288,7 @@ def plot_profile(lines: list[Line], path: Path, reps: int | None, seed: int) -> 
     games_axis.tick_params(length=3, labelsize="medium", labelcolor="0.3")
     games_axis.spines["top"].set_visible(False)
     ax.set_title(
-        "Performance profile, v4 NoFrameskip, with 95% stratified bootstrap bands",
+        "Performance profile, v4 NoFrameskip (no band: 3 seeds a game)",
         fontsize="medium",
     )
     ax.legend(loc="upper right", fontsize="medium", frameon=False)
@@ -327,9 +301,10 @@ def plot_profile(lines: list[Line], path: Path, reps: int | None, seed: int) -> 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m a3c_tools.atari_report",
-        description="The Atari lines across seeds and games with rliable: the IQM and mean of "
-        "human-normalised scores with 95%% stratified bootstrap intervals, per game the mean "
-        "over seeds, and a performance-profile figure.",
+        description="The Atari lines across seeds and games: the IQM and mean of "
+        "human-normalised scores, per game the mean over seeds, each mean with a 95% "
+        "Student-t interval over seeds (none below 3 seeds, none for the IQM), and a "
+        "performance-profile figure.",
     )
     parser.add_argument(
         "--config", type=Path, default=CONFIG, help="the lines (default: atari_report.toml)"
@@ -337,28 +312,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-o", "--output", type=Path, help="write the tables here, not stdout")
     parser.add_argument("--figure", type=Path, help="draw the performance profile (a PNG) here")
     parser.add_argument(
-        "--reps",
-        type=int,
-        help=f"bootstrap resamples of every interval and band (default: rliable's, "
-        f"{INTERVAL_REPS:,} for the intervals, {PROFILE_REPS:,} for the profile's band)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="the resamples' seed (default 0)")
-    parser.add_argument(
         "--links-from",
         type=Path,
         help="make the links to each run's evaluations.csv relative to this folder (default: "
         "the output's folder, or the repository root on stdout)",
     )
     options = parser.parse_args(argv)
-    if options.reps is not None and options.reps < 1:
-        print(f"error: --reps must be >= 1 (got {options.reps})", file=sys.stderr)
-        return 2
     try:
         games, lines = load(options.config)
     except ReportError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    estimate(lines, options.reps, options.seed)
+    estimate(lines)
     links_from = options.links_from or (options.output.parent if options.output else ROOT)
     text = render(games, lines, links_from)
     if options.output:
@@ -367,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(text, end="")
     if options.figure:
-        plot_profile(lines, options.figure, options.reps, options.seed)
+        plot_profile(lines, options.figure)
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Compare two configurations, paired: the effect with a 95% interval, a verdict and a figure.
+"""Compare two configurations, paired: the effect with a 95% t interval, a verdict and a figure.
 
     python -m a3c_tools.compare agents/a3c_ff.py agents/future_work/a3c_ff_idea.py --out cmp/idea
     python -m a3c_tools.compare agents/a3c_lpq.py agents/future_work/a3c_lpq_growth.py --fast \\
@@ -27,27 +27,37 @@ pairs differ by run seed alone). The two sweeps take turns in rounds of as many 
 once (cores // workers per run locally; all of them on Ray), so that a stopped comparison has
 its pairs. --backend ray [--address ...] runs them on a Ray cluster, as the sweep does.
 
-The result: the effect, the mean over the paired runs of (other - base), with its 95% BCa
-bootstrap interval, and the verdict on the question --expect asks (is other better than base,
-the default; worse; or comparable, within +-MARGIN) in the claims page's terms: one
-implementation, a3c_tools.paired, computes both, so the same two results give the same numbers
-here and on docs/claims.md. A run that failed or is missing in either line is left out of the
-pairs. It is printed and written to OUT/comparison.md, with OUT/comparison.png: both lines'
-scores against log10 of the learning rate (against the run seed when all runs share one rate),
-each run's pair joined by a thin line, the effect and its interval in the title. --from
-analyses two sweeps' folders already run (their results.csv), writing only with --out.
+Looking twice: a comparison that was inconclusive and is then extended (a larger --runs) is
+judged again; two looks at 95% each would find an effect that is not there more often than 1 in
+20. --second-look gives the second look a 97.5% interval, the claims page's rule (docs/claims.md,
+"Two looks"): over both looks the chance is at most 7.5%.
+
+The result: the effect, the mean over the paired runs of (other - base), with its 95% Student-t
+interval on the paired differences, and the verdict on the question --expect asks (is other
+better than base, the default; worse; or comparable, within +-MARGIN) in the claims page's
+terms: one implementation, a3c_tools.paired (its docstring gives the method and why), computes
+both, so the same two results give the same numbers here and on docs/claims.md. With fewer than
+3 paired runs there is no interval and no verdict (the t interval of 2 is +-12.7 standard
+errors); when every run of both lines is at random play (Catch about 0.2, an Atari game's random
+score), the result says so and gives no verdict, since neither line learned. A run that failed
+or is missing in either line is left out of the pairs. It is printed and written to
+OUT/comparison.md, with OUT/comparison.png: both lines' scores against log10 of the learning
+rate (against the run seed when all runs share one rate), each run's pair joined by a thin line,
+the effect and its interval in the title. --from analyses two sweeps' folders already run (their
+results.csv), writing only with --out.
 
 Resuming: the same command again runs only what is missing (each sweep skips its finished runs
 and resumes an interrupted one from its checkpoint); when both lines are complete it runs
 nothing and prints the result again. A larger --runs extends both lines.
 
-Bad input, checked before anything is created (one line, exit 2): a script that is missing or
-not an agent script, a flag one script lacks or refuses, a flag the comparison sets itself (the
-seed, the budget, the evaluation protocol, a sampled learning rate), a budget too small to
-evaluate (fewer than 5 evaluations, or evaluations closer than one update of t_max x K steps),
-or an OUT whose sweeps were run with another configuration.
+Bad input, checked before anything is created (one line, exit 2): --runs below 3, a script that
+is missing or not an agent script, a flag one script lacks or refuses, a flag the comparison
+sets itself (the seed, the budget, the evaluation protocol, a sampled learning rate), a budget
+too small to evaluate (fewer than 5 evaluations, or evaluations closer than one update of t_max
+x K steps), or an OUT whose sweeps were run with another configuration.
 
-Exit codes: 0 a result, 1 fewer than 2 paired runs (no interval), 2 bad input, 130 interrupted.
+Exit codes: 0 a result, 1 fewer than 3 paired runs (runs failed; no interval), 2 bad input, 130
+interrupted.
 """
 
 from __future__ import annotations
@@ -344,7 +354,7 @@ def answer(call: str, effect: float, expect: str, margin: float) -> str:
     would decide it, and the claims page's verdict on the question asked."""
     question = QUESTIONS.get(expect, f"other within +-{margin:g} of base")
     head = call.partition(":")[0]
-    if head == "inconclusive":
+    if head in ("inconclusive", "no verdict"):
         return f"{call} (expecting {question})"
     if expect == "comparable":
         word = "comparable" if head == "reproduced" else (
@@ -368,6 +378,12 @@ def config_of(line: Line) -> dict | None:
         return line.config
     path = line.folder / sweep.CONFIG_NAME
     return json.loads(path.read_text()) if path.is_file() else None
+
+
+def env_of(line: Line) -> str:
+    """The env id the line's runs played: its sweep's --env, else the scripts' Catch-v0."""
+    config = config_of(line) or {}
+    return sweep.flag_value(list(config.get("fixed_flags") or []), "env") or paired.CATCH
 
 
 def describe(line: Line) -> str:
@@ -402,7 +418,8 @@ def report(
     out += [
         "",
         f"Effect (other - base, {SCORES[options.score]}): **{result.shown()}**, the mean over "
-        f"{result.runs} paired runs with its 95% BCa bootstrap interval"
+        f"{result.runs} paired runs with its {result.level} interval (Student t on the paired "
+        "differences)"
         + (f" (left out, failed or missing in a line: {', '.join(left_out)})" if left_out else "")
         + ".",
         "",
@@ -467,10 +484,11 @@ def analyse(
     if considered is None:
         considered = sorted(set(scores[0]) | set(scores[1]))
     scores = [{k: v for k, v in s.items() if k in considered} for s in scores]
-    result = paired.pair(*scores)
+    confidence = paired.SECOND_LOOK if options.second_look else paired.CONFIDENCE
+    result = paired.pair(*scores, confidence=confidence, env_id=env_of(lines[0]))
     if result is None:
-        print(f"fewer than 2 paired runs (ok in both lines): no interval; see {lines[0].table} "
-              f"and {lines[1].table}", file=sys.stderr)  # fmt: skip
+        print(f"fewer than {paired.MIN_PAIRS} paired runs (ok in both lines): no interval and no "
+              f"verdict; see {lines[0].table} and {lines[1].table}", file=sys.stderr)  # fmt: skip
         return 1
     text = report(lines, result, considered, options, command)
     sys.stdout.write(text)
@@ -478,7 +496,7 @@ def analyse(
         out.mkdir(parents=True, exist_ok=True)
         (out / REPORT).write_text(f"{text}\n![comparison]({FIGURE})\n")
         call = result.verdict(options.expect, options.margin).partition(":")[0]
-        title = f"other - base: {result.shown()} (95% BCa, {result.runs} pairs); {call}"
+        title = f"other - base: {result.shown()} ({result.level}, {result.runs} pairs); {call}"
         draw(lines, result, out / FIGURE, title)
         print(f"wrote {out / REPORT}, {out / FIGURE}")
     return 0
@@ -512,7 +530,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         usage="%(prog)s BASE OTHER --out OUT [options]\n"
         "       %(prog)s --from BASE_SWEEP OTHER_SWEEP [--out OUT] [--score ...] [--expect ...]",
         description="Compare two agent scripts, or one script with two flag sets, at the same "
-        "learning rates and run seeds: the paired effect with a 95% BCa interval, the verdict "
+        "learning rates and run seeds: the paired effect with a 95% t interval, the verdict "
         "and a figure. See the module docstring for more.",
     )
     parser.add_argument("scripts", nargs="*", metavar="BASE OTHER", help="the two agent scripts")
@@ -526,7 +544,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--out", default=None, help="the comparison's folder (OUT/base, "
                         "OUT/other, comparison.md, comparison.png)")  # fmt: skip
     parser.add_argument("--runs", type=positive_int, default=None,
-                        help=f"runs per line (default {DEFAULT_RUNS})")  # fmt: skip
+                        help=f"runs per line, >= {paired.MIN_PAIRS} "
+                        f"(default {DEFAULT_RUNS})")  # fmt: skip
     parser.add_argument(
         "--steps",
         type=positive_int,
@@ -560,6 +579,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         type=positive_float,
         default=paired.MARGIN,
         help=f"comparable means within +-MARGIN (default {paired.MARGIN:g})",
+    )
+    parser.add_argument(
+        "--second-look",
+        action="store_true",
+        help=f"this result looks again at lines extended after an inconclusive one: a "
+        f"{100 * paired.SECOND_LOOK:g}%% interval (the claims page's rule for two looks)",
     )
     parser.add_argument(
         "--eval-interval",
@@ -598,6 +623,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     if options.out is None:
         parser.error("the following arguments are required: --out")
     options.runs = options.runs or DEFAULT_RUNS
+    if options.runs < paired.MIN_PAIRS:
+        parser.error(
+            f"--runs must be >= {paired.MIN_PAIRS} (got {options.runs}): fewer paired runs give "
+            "no useful interval and no verdict"
+        )
     options.fast = bool(options.fast)
     options.steps = options.steps or (FAST_STEPS if options.fast else DEFAULT_STEPS)
     if options.lr_range is None:

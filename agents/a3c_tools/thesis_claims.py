@@ -1,5 +1,5 @@
-"""The thesis's claims, each with our evidence, a 95% interval and a verdict: docs/claims.md,
-which opens with a forest plot of the rows, docs/img/claims_forest.png.
+"""The thesis's claims, each with our evidence, an interval and a verdict: docs/claims.md, which
+opens with a forest plot of the rows, docs/img/claims_forest.png.
 
     python -m a3c_tools.thesis_claims                  # print the page (no figure)
     python -m a3c_tools.thesis_claims -o docs/claims.md        # the page and its figure
@@ -8,24 +8,36 @@ which opens with a forest plot of the rows, docs/img/claims_forest.png.
 The claims are in agents/a3c_tools/thesis_claims.toml. A claim compares two lines of the same sweep
 design (the same learning rates and run seeds, so runs pair up by run_id): each line's
 results.csv, committed under results/, gives one score per run (the mean of its final 5
-evaluations). The pairing, the effect with its 95% BCa interval and the verdict are
+evaluations). The pairing, the effect with its t interval and the verdict are
 a3c_tools.paired's (its docstring gives the rules), which `a3c_tools.compare` uses too. A claim
 whose lines have not been run yet, or that has one run per line (the Atari figures), gets no
 interval: the row says what would decide it.
 
-The forest plot has one row per claim with an interval (the paired mean effect as a dot, its
-95% interval as a bar, coloured by verdict, grouped by the page's sections); the rows without
-one are left off, and the caption under it counts them. It lives at img/claims_forest.png
-beside the page (`-o docs/claims.md` writes docs/img/claims_forest.png), which the page links.
-The numbers drawn, each row's section, label, effect, interval, verdict and colour, are written
-into the PNG itself (its "Description" text chunk, as JSON), and `--check` compares those with
-what would be drawn now: the check is of the data, not of the pixels, which differ between
-matplotlib versions.
+Looks. A row rests on a fixed set of runs: its first look, runs 0..runs-1 of both lines (the
+claim's `runs`, FIRST_LOOK by default), whatever else its lines hold (a line shared with a row
+that is extended grows, and the rows that are not extended must not gain pairs from it). A row
+extended because its first look was inconclusive (the claim's `extend`: N runs, and the second
+look's folders where they are new ones) is judged at its second look, runs 0..N-1, once both
+lines hold N runs, with a SECOND_LOOK (97.5%) interval, and shows the first look's 95% interval
+beside it; until then it keeps the first look's verdict and says the extension is in
+progress. Two looks at 95% each would give a row with no effect a directional verdict more
+often than 5%; at 95% then 97.5% the chance is at most 5% + 2.5% (the page states the rule, and
+tests/test_thesis_claims.py simulates it).
+
+The forest plot has one row per claim with an interval (the paired mean effect as a dot, the
+interval that gives its verdict as a bar, coloured by verdict, grouped by the page's sections);
+the rows without one are left off, and the caption under it counts them. It lives at
+img/claims_forest.png beside the page (`-o docs/claims.md` writes docs/img/claims_forest.png),
+which the page links. The numbers drawn, each row's section, label, effect, interval, verdict
+and colour, are written into the PNG itself (its "Description" text chunk, as JSON), and
+`--check` compares those with what would be drawn now: the check is of the data, not of the
+pixels, which differ between matplotlib versions.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import re
 import sys
@@ -34,7 +46,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from a3c_tools import run_main
-from a3c_tools.paired import MARGIN, Paired, pair, read_scores
+from a3c_tools.paired import MARGIN, SECOND_LOOK, Paired, pair, read_scores
 
 try:
     import tomllib
@@ -51,13 +63,83 @@ def scores(folder: str, column: str = "score") -> dict[str, float]:
     return read_scores(ROOT / folder / "results.csv", column)
 
 
-def compared(claim: dict) -> Paired | None:
-    """The claim's two lines paired by run_id, with the effect and its interval; None for a
-    claim judged without a pair of lines, or whose lines are not run yet."""
+FIRST_LOOK = 8  # a Catch row's runs per line where its claim names no `runs`
+
+
+def run_ids(runs: int) -> list[str]:
+    """The run ids of a sweep's runs 0..runs-1."""
+    return [f"run-{i:04d}" for i in range(runs)]
+
+
+def finished(folder: str, runs: int) -> bool:
+    """Whether the committed folder's results.csv holds runs 0..runs-1 (ok or failed)."""
+    table = ROOT / folder / "results.csv"
+    if not table.is_file():
+        return False
+    with open(table, newline="") as f:
+        done = {row["run_id"] for row in csv.DictReader(f)}
+    return set(run_ids(runs)) <= done
+
+
+@dataclass(frozen=True)
+class Looks:
+    """A pair row's evidence: its first look (runs 0..first-1 of both lines, 95%) and, for a row
+    extended after it, the second look (runs 0..N-1, at SECOND_LOOK) once both lines hold N
+    runs. `decisive` is the look whose verdict the row takes."""
+
+    first: Paired | None
+    second: Paired | None
+    extension: int | None  # the second look's N, for an extended row
+
+    @property
+    def decisive(self) -> Paired | None:
+        return self.second if self.second is not None else self.first
+
+    def verdict(self, expect: str) -> str:
+        if self.decisive is None:
+            return "not run yet"
+        call = self.decisive.verdict(expect)
+        if self.extension is not None and self.second is None:
+            call += f"; extension to {self.extension} runs in progress (campaign)"
+        return call
+
+    def shown(self) -> str:
+        """The effect with its interval; for a row with a second look, both looks."""
+        if self.second is None:
+            return self.first.shown() if self.first is not None else "-"
+        first = (
+            f"; first look (n = {self.first.runs}, {self.first.level}): {self.first.shown()}"
+            if self.first is not None
+            else ""
+        )
+        return f"{self.second.shown()} (n = {self.second.runs}, {self.second.level}){first}"
+
+
+def compared(claim: dict) -> Looks | None:
+    """The claim's two lines paired by run_id, each look with its effect and interval; None for
+    a claim judged without a pair of lines. A row rests on exactly its first look's runs (runs
+    0..runs-1) until its extension's lines both hold `extend.runs`, whatever else its lines
+    (shared with other rows) hold."""
     if "baseline" not in claim:
         return None
     column = claim.get("score", "score")
-    return pair(scores(claim["baseline"], column), scores(claim["line"], column))
+    first_runs = claim.get("runs", FIRST_LOOK)
+    first = pair(
+        scores(claim["baseline"], column), scores(claim["line"], column),
+        run_ids=run_ids(first_runs),
+    )  # fmt: skip
+    extend = claim.get("extend")
+    if extend is None:
+        return Looks(first, None, None)
+    n = extend["runs"]
+    folders = (extend.get("baseline", claim["baseline"]), extend.get("line", claim["line"]))
+    second = None
+    if all(finished(folder, n) for folder in folders):
+        second = pair(
+            *(scores(folder, column) for folder in folders),
+            confidence=SECOND_LOOK, run_ids=run_ids(n),
+        )  # fmt: skip
+    return Looks(first, second, n)
 
 
 def evidence(claim: dict) -> tuple[str, str, str]:
@@ -65,18 +147,23 @@ def evidence(claim: dict) -> tuple[str, str, str]:
     if "baseline" not in claim:
         return claim["ours"], "-", claim["verdict"]
     column = claim.get("score", "score")
-    paired = compared(claim)
+    looks = compared(claim)
+    paired = looks.decisive
     if paired is None:  # the command goes to the page's list of what is missing
         return "not run yet (the command is in the last section)", "-", "not run yet"
     names = claim.get("names", ["baseline", "line"])
+    extend = claim.get("extend", {})
+    folders = (extend.get("baseline", claim["baseline"]), extend.get("line", claim["line"]))
+    if looks.second is None:
+        folders = (claim["baseline"], claim["line"])
     ours = (
         f"{names[1]} {paired.other.mean():.3f} vs {names[0]} {paired.base.mean():.3f}"
         + (" (the mean over all evaluations)" if column == "score_all" else "")
         + f" (n = {paired.runs} paired "
-        f"runs; [{claim['line']}]({link(claim['line'])}), [{claim['baseline']}]"
-        f"({link(claim['baseline'])}))"
+        f"runs; [{folders[1]}]({link(folders[1])}), [{folders[0]}]"
+        f"({link(folders[0])}))"
     )
-    return ours, paired.shown(), paired.verdict(claim["expect"])
+    return ours, looks.shown(), looks.verdict(claim["expect"])
 
 
 def link(folder: str) -> str:
@@ -84,19 +171,31 @@ def link(folder: str) -> str:
     return f"../{folder}/results.csv"
 
 
-VERDICTS = ("reproduced", "contradicted", "inconclusive", "not run yet")  # the tally's order
+# the tally's order
+VERDICTS = ("reproduced", "contradicted", "inconclusive", "no verdict", "not run yet")
+
+
+def head_of(call: str) -> str:
+    """A verdict's first word(s): "inconclusive" of "inconclusive: about 11 runs ...", "reproduced"
+    of "reproduced; extension to 11 runs in progress (campaign)"."""
+    return re.split(r"[:;]", call, maxsplit=1)[0]
 
 
 def tally(verdicts: list[str]) -> str:
     """How many rows have each verdict: "**At a glance**: 3 rows: 2 reproduced, 1 ..."."""
-    counts = Counter(call.partition(":")[0] for call in verdicts)
+    counts = Counter(head_of(call) for call in verdicts)
     heads = [*VERDICTS, *sorted(set(counts) - set(VERDICTS))]
     parts = ", ".join(f"{counts[head]} {head}" for head in heads if counts[head])
     return f"**At a glance**: {len(verdicts)} rows: {parts}."
 
 
 # The forest plot. Colours by the verdict's first word; the checks compare them with the page.
-COLOURS = {"reproduced": "#2e7d32", "contradicted": "#c62828", "inconclusive": "#8a8a8a"}
+COLOURS = {
+    "reproduced": "#2e7d32",
+    "contradicted": "#c62828",
+    "inconclusive": "#8a8a8a",
+    "no verdict": "#b0b0b0",
+}
 SYMBOLS = {"better": ">", "worse": "<", "comparable": "\u2248"}  # line against baseline
 
 
@@ -136,10 +235,11 @@ def forest_points(claims: dict) -> list[Point]:
     points = []
     for section in claims["section"]:
         for claim in section["claim"]:
-            paired = compared(claim)
+            looks = compared(claim)
+            paired = looks.decisive if looks is not None else None
             if paired is None:
                 continue
-            verdict = paired.verdict(claim["expect"]).partition(":")[0]
+            verdict = head_of(looks.verdict(claim["expect"]))
             effect, low, high = (round(x, 3) for x in (paired.effect, paired.low, paired.high))
             points.append(Point(section["title"], label(claim), effect, low, high, verdict,
                                 COLOURS[verdict]))  # fmt: skip
@@ -222,7 +322,8 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
     drawn = len(rows) - sum(sum(counts.values()) for counts in left_off.values())
     text = (
         f"*The {drawn} rows with an interval: the paired mean effect (line - baseline, in Catch "
-        "score) with its 95% interval, coloured by verdict; a label reads as the claim (line > "
+        f"score) with its t interval (95%; {100 * SECOND_LOOK:g}% at an extended row's second "
+        "look), coloured by verdict; a label reads as the claim (line > "
         f"baseline for better, < for worse, \u2248 for comparable: within the band of "
         f"\u00b1{MARGIN})."
     )
@@ -240,7 +341,7 @@ def render(claims: dict) -> str:
     rows = [evidence(claim) for section in claims["section"] for claim in section["claim"]]
     out, missing = [claims["intro"].strip(), "", tally([call for *_, call in rows]), ""], {}
     if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
-        out += [f"![The claims' effects with their 95% intervals]({FIGURE.as_posix()})", ""]
+        out += [f"![The claims' effects with their intervals]({FIGURE.as_posix()})", ""]
         out += [caption(claims, rows), ""]
     next_row = iter(rows)
     for section in claims["section"]:
@@ -248,15 +349,17 @@ def render(claims: dict) -> str:
         if "text" in section:
             out += [section["text"].strip(), ""]
         out += [
-            "| claim | where | form | thesis's evidence | ours | effect [95% CI] | verdict |",
+            "| claim | where | form | thesis's evidence | ours | effect [95% t interval] "
+            "| verdict |",
             "|---|---|---|---|---|---|---|",
         ]
         for claim in section["claim"]:
             ours, effect, call = next(next_row)
             if call == "not run yet" and "command" in claim:
                 missing.setdefault(claim["command"], []).append(claim["where"])
-            head, _, rest = call.partition(":")
-            verdict_cell = f"**{head}**" + (f": {rest.strip()}" if rest else "")
+            head = head_of(call)
+            rest = call[len(head) :]
+            verdict_cell = f"**{head}**{rest}"
             cells = [claim["claim"], claim["where"], claim.get("form", "-"), claim["thesis"],
                      ours, effect, verdict_cell]  # fmt: skip
             out.append("| " + " | ".join(" ".join(cell.split()) for cell in cells) + " |")

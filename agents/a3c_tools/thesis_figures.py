@@ -333,8 +333,18 @@ def plural(count: int, noun: str) -> str:
     return f"{count} {noun}{'s' * (count != 1)}"
 
 
-def eval_interval(steps: int) -> int:
+def eval_interval(steps: int | str) -> int | str:
+    """Steps between evaluations: steps / 20; for a dry run's placeholder, "STEPS/20"."""
+    if isinstance(steps, str):
+        return f"{steps}/{EVALUATIONS_PER_RUN}"
     return max(1, steps // EVALUATIONS_PER_RUN)
+
+
+def steps_text(steps: int | str) -> str:
+    return steps if isinstance(steps, str) else f"{steps:,}"
+
+
+PLACEHOLDERS = {"out": "OUT", "runs": "RUNS", "steps": "STEPS"}  # what a dry run may leave out
 
 
 def plot_commands(figure: Figure, options: argparse.Namespace) -> list[tuple[list[str], Path]]:
@@ -345,7 +355,7 @@ def plot_commands(figure: Figure, options: argparse.Namespace) -> list[tuple[lis
     workers = options.num_workers or 1
     title = (
         f"Thesis Figure {figure.number} as run: {plural(options.runs, 'run')} per line, lr in "
-        f"[{low:g}, {high:g}], {options.steps:,} steps, {plural(workers, 'worker')} "
+        f"[{low:g}, {high:g}], {steps_text(options.steps)} steps, {plural(workers, 'worker')} "
         f"({THESIS_BUDGET})"
     )
     commands = []
@@ -519,6 +529,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = Parser(
         prog="python -m a3c_tools.thesis_figures",
         usage="%(prog)s FIG [FIG ...] --out OUT --runs N --steps S [options]\n"
+        "       %(prog)s FIG [FIG ...] --dry-run [--out OUT] [--runs N] [--steps S] [options]\n"
         "       %(prog)s --list [FIG ...]",
         description="Run a thesis Catch figure's lines as run, through a3c_tools.sweep, and draw "
         "it with a3c_tools.plot_sweep. See the module docstring for more.",
@@ -577,8 +588,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     if not options.list:
         if not options.ids:
             parser.error(f"name a figure: {', '.join(figure_ids())}, all (or --list)")
-        missing = [flag for flag in ("out", "runs", "steps") if getattr(options, flag) is None]
-        if missing:
+        missing = [flag for flag in PLACEHOLDERS if getattr(options, flag) is None]
+        if missing and not options.dry_run:
             parser.error(
                 "the following arguments are required: " + ", ".join(f"--{m}" for m in missing)
             )
@@ -599,6 +610,12 @@ def main(argv: list[str] | None = None) -> int:
         print(list_figures(figures))
         return 0
     if options.dry_run:
+        missing = {flag: text for flag, text in PLACEHOLDERS.items()
+                   if getattr(options, flag) is None}  # fmt: skip
+        for flag, text in missing.items():
+            setattr(options, flag, text)
+        if missing:
+            print("# " + ", ".join(f"{text} stands for --{flag}" for flag, text in missing.items()))
         printed = set()  # a line shared by figures is one sweep, run once
         for figure in figures:
             print(f"# {figure.id}: {figure.caption}")
