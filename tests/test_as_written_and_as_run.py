@@ -1,8 +1,8 @@
 """docs/as-written-and-as-run.md's table is data: each row names the text's form, the form the
 thesis's runs computed, which of the two is the default, and the flag that gives the other. Every
-flag in the table must parse against a script and change its Args; every row whose default is
-not the text has a check here that the default computes the runs' form and the flag the text's
-(a row without its check, or a check without its row, fails). Life loss as terminal, a choice
+flag in the table must parse against a script and change its Args, and every row has a check here
+that the default computes the form the row says and the flag the other (a row without its check,
+or a check without its row, fails). Life loss as terminal, a choice
 the text leaves open, is checked last."""
 
 from __future__ import annotations
@@ -193,6 +193,162 @@ def test_each_row_whose_default_is_not_the_text_has_its_check():
 def test_the_default_computes_the_runs_form_and_the_flag_the_texts(what, monkeypatch):
     check = NOT_THE_TEXT[what]
     check(monkeypatch) if what == "precision" else check()
+
+
+# ---- the rows whose default is the text: the flag computes the runs' form ----------------------
+
+
+def network(script: str, *argv: str) -> torch.nn.Module:
+    args = runtime.resolve_defaults(
+        tyro.cli(load_script(script).Args, args=[*argv, "--num-workers", "1"])
+    )
+    return load_script(script).AGENT.build_network(3, args)
+
+
+def check_mu_form() -> None:
+    """Eq. 7.7's mu by default; --mu-form code: tau (d_- / (d_i + d_-) - d_i)."""
+    glpq = load_script("a3c_glpq")
+    assert glpq.Args().mu_form == "text"
+    distances = torch.rand(2, 3, 4, generator=torch.Generator().manual_seed(0)) * 5
+    d_minus = glpq.nearest_other_action(distances)
+    tau = 1.3
+    for form, scores in (
+        ("text", (d_minus - distances) / (d_minus + distances)),
+        ("code", d_minus / (distances + d_minus) - distances),
+    ):
+        expected = (tau * scores).logsumexp(-1).log_softmax(-1)
+        torch.testing.assert_close(glpq.glpq_log_policy(distances, tau, 4, form), expected)
+    assert parse(["--mu-form", "code"])[1].mu_form == "code"
+
+
+def check_tau_loss_scope() -> None:
+    """1/tau times the policy-gradient term by default; as run, the entropy bonus too."""
+    glpq = load_script("a3c_glpq")
+    policy, entropy, value, scale = torch.tensor(2.0), torch.tensor(3.0), torch.tensor(5.0), 0.25
+    for scope, expected in (
+        ("policy", scale * policy - 0.01 * entropy + value),
+        ("policy-and-entropy", scale * (policy - 0.01 * entropy) + value),
+    ):
+        args = tyro.cli(glpq.Args, args=["--tau-loss-scope", scope])
+        loss = glpq.tau_corrected_loss(
+            policy - 0.01 * entropy + value, policy, entropy, scale, args
+        )
+        torch.testing.assert_close(loss, expected)
+
+
+def check_tau_parametrization() -> None:
+    """A trainable tau is log tau by default, tau itself with --tau-parametrization plain; both
+    start at the cold tau for p0, 1.445 on Catch's 3 actions."""
+    log = network("a3c_glpq", "--temperature", "trainable")
+    plain = network("a3c_glpq", "--temperature", "trainable", "--tau-parametrization", "plain")
+    assert log.log_tau.exp().item() == pytest.approx(1.445, abs=1e-3)
+    assert plain.plain_tau.item() == pytest.approx(1.445, abs=1e-3) and not hasattr(
+        plain, "log_tau"
+    )
+
+
+def conv_shapes(model: torch.nn.Module) -> list[tuple]:
+    convs = [m for m in model.modules() if isinstance(m, torch.nn.Conv2d)]
+    return [(m.kernel_size[0], m.stride[0]) for m in convs]
+
+
+def check_conv_layout() -> None:
+    """SS and WW: A3C FF's 8x8/4, 4x4/2 by default; --conv-layout final: 5x5/3, 3x3/2."""
+    for script in ("a3c_ss", "a3c_ww"):
+        assert conv_shapes(network(script)) == [(8, 4), (4, 2)]
+        assert conv_shapes(network(script, "--conv-layout", "final")) == [(5, 3), (3, 2)]
+
+
+def check_ss_temperature() -> None:
+    """A trainable tau per map by default; one global (--ss-temperature global), fixed
+    (--no-ss-trainable-temperature) as the runs' labels had them."""
+    per_map = network("a3c_ss")
+    temperature = dict(per_map.named_parameters())
+    (name,) = [n for n in temperature if n.endswith("temperature")]
+    assert temperature[name].numel() > 1
+    fixed = network("a3c_ss", "--ss-temperature", "global", "--no-ss-trainable-temperature")
+    assert not [n for n, _ in fixed.named_parameters() if n.endswith("temperature")]
+    (buffer,) = [b for n, b in fixed.named_buffers() if n.endswith("temperature")]
+    assert buffer.numel() == 1
+
+
+def check_lws() -> None:
+    """Eq. 6.2's one Sigma per layer and 'valid' padding by default; as run, a 2x2 A per
+    centroid and 'same' padding (the second layer's grid 11x11, not 9x9), and "LWS S"'s 2x2 grid
+    of centroids."""
+    text = network("a3c_lws")
+    run = network("a3c_lws", "--lws-similarity", "matrix", "--lws-padding", "same")
+    sigmas = [p for n, p in text.named_parameters() if n.endswith("sigma")]
+    matrices = [p for n, p in run.named_parameters() if n.endswith("matrix")]
+    assert [s.shape for s in sigmas] == [(2, 2), (2, 2)]
+    assert len(matrices) == 2 and all(m.shape[-2:] == (2, 2) and m.dim() == 4 for m in matrices)
+    for model, grid in ((text, 9), (run, 11)):
+        linear = next(m for m in model.modules() if isinstance(m, torch.nn.Linear))
+        assert linear.in_features == 64 * grid * grid
+    grid = network("a3c_lws", "--lws-centroid-init", "grid", "--lws-kcps", "4")
+    centroids = next(c for n, c in grid.named_parameters() if n.endswith("centroids"))
+    assert sorted({round(x, 4) for x in centroids.flatten().tolist()}) == [0.3333, 0.6667]
+
+
+def check_global_norm() -> None:
+    """Global-norm clipping at c_g = 25 by default, 21.3796 as run: the gradients' global norm
+    scaled to the bound."""
+    for argv, bound in (([], 25.0), (["--grad-clip", "21.3796"], 21.3796)):
+        args = runtime.resolve_defaults(parse(["--grad-clip-mode", "global-norm", *argv])[1])
+        assert args.grad_clip == bound
+        grads = [torch.full((3,), 20.0), torch.full((4,), 10.0)]
+        runtime.clip_gradients(grads, args.grad_clip_mode, args.grad_clip)
+        norm = torch.linalg.vector_norm(torch.cat(grads)).item()
+        assert norm == pytest.approx(bound, rel=1e-5)
+
+
+def check_adam_beta2() -> None:
+    """Adam's beta2 0.99 by default, 0.999 with --adam-beta2 0.999."""
+    from a3c_runtime.hogwild import make_optimizer
+
+    params = [torch.zeros(2)]
+    for argv, beta2 in (([], 0.99), (["--adam-beta2", "0.999"], 0.999)):
+        args = parse(["--optimizer", "adam", *argv])[1]
+        assert make_optimizer(params, args).beta2 == beta2
+
+
+def check_vf_coef() -> None:
+    """lambda_V 0.5 by default; --vf-coef 1.0 doubles the value loss's part of the loss."""
+    ff = load_script("a3c_ff")
+    assert ff.Args().vf_coef == 0.5
+    log_probs = torch.full((2, 3), 1 / 3).log()
+    values, returns, actions = (
+        torch.tensor([0.0, 1.0]),
+        torch.tensor([2.0, 0.0]),
+        torch.tensor([0, 1]),
+    )
+    half = ff.a3c_loss(log_probs, actions, values, returns, 0.0, 0.5)
+    whole = ff.a3c_loss(
+        log_probs, actions, values, returns, 0.0, parse(["--vf-coef", "1.0"])[1].vf_coef
+    )
+    torch.testing.assert_close(whole[0] - whole[1], 2 * (half[0] - half[1]))
+
+
+THE_TEXT = {
+    "GLPQ's relative distance": check_mu_form,
+    "GLPQ's 1/tau loss correction": check_tau_loss_scope,
+    "GLPQ's trainable tau": check_tau_parametrization,
+    "SS and WW convolutions": check_conv_layout,
+    "SS temperature labels": check_ss_temperature,
+    "LWS layers": check_lws,
+    "global-norm clipping bound": check_global_norm,
+    "Adam's beta2": check_adam_beta2,
+    "value loss factor": check_vf_coef,
+}
+
+
+def test_each_row_whose_default_is_the_text_has_its_check():
+    assert {row["what"] for row in ROWS if row["default"] == "text"} == set(THE_TEXT)
+
+
+@pytest.mark.parametrize("what", THE_TEXT)
+def test_the_default_computes_the_texts_form_and_the_flag_the_runs(what):
+    THE_TEXT[what]()
 
 
 def calls(script: str, function: str) -> list[ast.Call]:
