@@ -65,14 +65,18 @@ class Args:
     ent_coef: float = 0.01
     """the entropy factor beta"""
     vf_coef: float = 0.5
-    """the value loss factor lambda_V (thesis 6.4.1); the value loss is vf_coef * 0.5 * (G - V)^2"""
+    """the value loss factor lambda_V (thesis 6.4.1): the factor of --value-loss-form's loss"""
+    value_loss_form: Literal["code", "text"] = "code"
+    """the value loss: code, vf_coef * 0.5 * (G - V)^2, as the thesis's code computed it
+    (TensorFlow's l2_loss) in every thesis run; text, vf_coef * (G - V)^2, as Algorithm 1 writes
+    it (twice code's value gradient at the same vf_coef)"""
     precision: Literal["auto", "fp32", "bf16", "bf16-learn"] = "auto"
     """the workers' network passes: fp32; bf16: acting and learning under bfloat16 CPU autocast;
     bf16-learn: acting (and so the forward values the loss replays) in fp32, the learning pass's
     gradients in bf16. Weights, optimizer statistics, returns and the loss stay float32; the
     evaluator and --evaluate play in fp32. auto, on a CPU with native bf16: bf16 with K > 1 envs
     per worker, bf16-learn with K = 1 (a forward over one state is faster in fp32); fp32
-    elsewhere (results/precision_catch, results/throughput_batched)"""
+    elsewhere (results/precision_catch, results/throughput_batched). The thesis ran fp32"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
@@ -90,7 +94,9 @@ class Args:
     RMSPropOptimizer (OpenAI baselines' A2C, whose --optim-eps 1e-5 assumes it): from 0 with a
     small eps the first updates are about 10 lr per weight, from 1 they start small"""
     grad_clip_mode: Literal["norm", "value", "global-norm", "none"] = "norm"
-    """gradient clipping: per-tensor norm, per-value, global norm (thesis 6.3.1), or none"""
+    """gradient clipping: norm, each tensor by its norm, as the thesis's code
+    (tf.clip_by_norm); value, each element, as section 6.3.1 writes it; global-norm (6.3.1's
+    c_g); or none"""
     grad_clip: Annotated[float | None, default_text("40; c_g = 25 for global-norm")] = None
     """the clipping bound"""
 
@@ -105,6 +111,10 @@ class Args:
     torch init, 0 with the other weight inits"""
     scale_obs: Annotated[bool | None, default_text("True for ALE, False for Catch")] = None
     """divide frames by 255 (the thesis fed Catch 0..255)"""
+    terminal_on_life_loss: bool = False
+    """ALE ids: a lost life ends the learner's episode but not the game, as in DeepMind's Atari
+    setup (catch_env.wrappers.EpisodicLifeEnv); evaluations play whole games. Off, an episode
+    ends at game over, as in the thesis's runs"""
 
     # Spatial softmax (thesis 6.2)
     conv_layout: Literal["ff", "final"] = "ff"
@@ -167,13 +177,17 @@ def make_env(env_id: str, render_mode: str | None = None) -> gym.Env:
     return make_wrapped_env(env_id, render_mode=render_mode)
 
 
-def make_vector_env(env_id: str, num_envs: int) -> gym.vector.VectorEnv:
+def make_vector_env(
+    env_id: str, num_envs: int, terminal_on_life_loss: bool = False
+) -> gym.vector.VectorEnv:
     """make_env's preprocessing for num_envs envs stepped together (Catch: its NumPy vector
     env; ALE: ale-py's C++ vector env, one emulator thread); an ended episode's env is reset in
-    the same step (catch_env.wrappers.make_vector_env)."""
+    the same step (catch_env.wrappers.make_vector_env). With terminal_on_life_loss (ALE ids
+    only), a lost life ends the episode but not the game."""
     from catch_env.wrappers import make_vector_env as make_wrapped_vector_env
 
-    return make_wrapped_vector_env(env_id, num_envs)
+    life_loss = {"terminal_on_life_loss": True} if terminal_on_life_loss else {}
+    return make_wrapped_vector_env(env_id, num_envs, **life_loss)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -314,14 +328,19 @@ def a3c_loss(
     returns: torch.Tensor,
     ent_coef: float,
     vf_coef: float,
+    value_loss_form: str = "code",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The A3C loss summed over the rollout (Algorithm 1): policy gradient with the advantage
-    not back-propagated, minus beta * entropy, plus lambda_V * 0.5 * (G - V)^2.
+    not back-propagated, minus beta * entropy, plus lambda_V times the value loss: 0.5 * (G - V)^2
+    with value_loss_form "code" (TensorFlow's l2_loss, as the thesis's code), (G - V)^2 with
+    "text" (Algorithm 1, line 16).
     Returns (loss, policy_loss, value_loss, entropy), the last three before their factors."""
     advantages = returns - values
     policy_loss = -(log_probs.gather(1, actions[:, None]).squeeze(1) * advantages.detach()).sum()
     entropy = -(log_probs.exp() * log_probs).sum()
-    value_loss = 0.5 * advantages.pow(2).sum()
+    value_loss = advantages.pow(2).sum()
+    if value_loss_form == "code":
+        value_loss = 0.5 * value_loss
     return policy_loss - ent_coef * entropy + vf_coef * value_loss, policy_loss, value_loss, entropy
 
 
@@ -333,7 +352,7 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
     seed = process_seed(args.seed, worker_id)
     seed_everything(seed)
     rng = np.random.default_rng(seed)
-    envs = make_vector_env(args.env, args.envs_per_worker)
+    envs = make_vector_env(args.env, args.envs_per_worker, args.terminal_on_life_loss)
     num_envs = envs.num_envs
     model = ActorCritic(envs.single_action_space.n, args).to(memory_format=torch.channels_last)
     params = list(model.parameters())
@@ -412,6 +431,7 @@ def worker(worker_id: int, shared: Shared, args: Args) -> None:
             torch.from_numpy(returns.ravel()),
             args.ent_coef,
             args.vf_coef,
+            args.value_loss_form,
         )
         grads = torch.autograd.grad(loss, params)
         grad_norm = clip_gradients(grads, args.grad_clip_mode, args.grad_clip)

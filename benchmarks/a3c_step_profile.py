@@ -100,8 +100,8 @@ def profile(a3c, seconds: float, **flags) -> tuple[int, float, PhaseClock]:
     clock = PhaseClock()
     make_vector_env, loop_start = a3c.make_vector_env, []
 
-    def timed_vector_env(env_id: str, num_envs: int):
-        envs = make_vector_env(env_id, num_envs)
+    def timed_vector_env(env_id: str, num_envs: int, terminal_on_life_loss: bool = False):
+        envs = make_vector_env(env_id, num_envs, terminal_on_life_loss)
         envs.step = clock.timed("env step", envs.step)
         loop_start.append(time.perf_counter())  # building 16 emulators is not a phase
         return envs

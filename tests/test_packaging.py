@@ -164,25 +164,6 @@ def test_wheels_carry_the_license_and_index_metadata(tmp_path: Path) -> None:
     assert "__init__.py" in runtime and packaged == runtime
 
 
-@pytest.mark.parametrize(
-    "tool", ["sweep", "thesis_figures", "thesis_claims", "plot_evaluations", "plot_sweep"]
-)
-def test_a_moved_tools_old_command_names_the_new_one(tool: str) -> None:
-    """The tools moved to the a3c_tools package; their old commands (python agents/<tool>.py)
-    print one line with the new command, its arguments kept, and exit 2 (the process boundary is
-    what is tested: the exit code and message of an entry point)."""
-    result = subprocess.run(
-        [sys.executable, str(ROOT / "agents" / f"{tool}.py"), "--out", "a b"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
-    assert result.returncode == 2 and result.stdout == ""
-    assert result.stderr == (
-        f"error: agents/{tool}.py moved; run: python -m a3c_tools.{tool} --out 'a b'\n"
-    )
-
-
 def test_the_agents_distribution_needs_only_what_the_scripts_need() -> None:
     """matplotlib, scipy and tomli are the tools' (the `tools` extra), not the scripts'."""
     project = tomllib.loads((ROOT / "agents" / "pyproject.toml").read_text())["project"]

@@ -161,13 +161,13 @@ class ScriptedVectorEnv:
 def scripted_run(module, monkeypatch, env: ScriptedVectorEnv, **flags):
     """Run the script's worker on env with a learning rate of 0 (the network stays the initial
     one); returns the shared network and each update's a3c_loss arguments."""
-    monkeypatch.setattr(module, "make_vector_env", lambda env_id, num_envs: env)
+    monkeypatch.setattr(module, "make_vector_env", lambda env_id, num_envs, life_loss: env)
     updates = []
 
-    def recorded_loss(log_probs, actions, values, returns, ent_coef, vf_coef):
+    def recorded_loss(log_probs, actions, values, returns, ent_coef, vf_coef, value_loss_form):
         updates.append({"log_probs": log_probs.detach().clone(), "actions": actions.clone(),
                         "values": values.detach().clone(), "returns": returns.clone()})  # fmt: skip
-        return loss(log_probs, actions, values, returns, ent_coef, vf_coef)
+        return loss(log_probs, actions, values, returns, ent_coef, vf_coef, value_loss_form)
 
     loss = module.a3c_loss
     monkeypatch.setattr(module, "a3c_loss", recorded_loss)

@@ -48,6 +48,8 @@ def resolve_defaults(args: Any) -> Any:
         raise UsageError(str(e)) from e
     except gym.error.Error as e:
         raise UsageError(f"unknown --env {args.env!r}; valid: {VALID_ENVS}") from e
+    if getattr(args, "terminal_on_life_loss", False) and not atari:  # tools may omit it
+        raise UsageError(f"--terminal-on-life-loss needs an ALE id (lives); --env is {args.env}")
     if args.total_timesteps is None:
         args.total_timesteps = 100_000_000 if atari else 1_000_000
     if args.eval_interval is None:

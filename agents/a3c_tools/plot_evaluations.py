@@ -107,7 +107,9 @@ def plot(paths: list[Path], labels: list[str], output: Path, threshold: float | 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m a3c_tools.plot_evaluations", description=__doc__.split("\n")[0]
+    )
     parser.add_argument("csv", nargs="+", type=Path, help="evaluations.csv files")
     parser.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
     parser.add_argument("--labels", nargs="+", help="one legend label per file")

@@ -332,8 +332,8 @@ def summary_table(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="plot_sweep.py",
-        description="Plot sweep results tables (agents/a3c_tools/sweep.py) in the thesis's style.",
+        prog="python -m a3c_tools.plot_sweep",
+        description="Plot sweep results tables (python -m a3c_tools.sweep) in the thesis's style.",
     )
     parser.add_argument("tables", nargs="+", help="results.csv files, one per configuration")
     parser.add_argument(

@@ -94,7 +94,9 @@ def write_gif(frames: list[np.ndarray], out: Path, fps: int, scale: int = 1) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m a3c_tools.record_play", description=__doc__.split("\n\n")[0]
+    )
     parser.add_argument("checkpoint", help="a checkpoint.pt written by an agent script")
     parser.add_argument("-o", "--out", type=Path, required=True, help="the GIF to write")
     parser.add_argument("--seed", type=int, default=1, help="of the episode and its actions")

@@ -873,7 +873,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     else:
         fixed = []
     parser = argparse.ArgumentParser(
-        prog="sweep.py",
+        prog="python -m a3c_tools.sweep",
         description="Run an agent script many times with sampled flags; collect a results table.",
         epilog="Flags after `--` go unchanged to every run. See the module docstring for more.",
     )

@@ -1,7 +1,0 @@
-# agents/thesis_claims.py moved to the a3c_tools package: the tools live apart from the algorithms.
-import shlex
-import sys
-
-new = shlex.join(["python", "-m", "a3c_tools.thesis_claims", *sys.argv[1:]])
-print(f"error: agents/thesis_claims.py moved; run: {new}", file=sys.stderr)
-sys.exit(2)
