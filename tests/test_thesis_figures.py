@@ -199,6 +199,7 @@ def test_the_loader_reads_a_data_file(tmp_path):
         ("ELU = 0.5", "Elu = 0.5", "fig6.7: numbers name 'Elu', which is no line's label"),
         ("ELU = 0.5", 'ELU = "0.5"', "fig6.7: numbers: 'ELU' = '0.5' is not a number"),
         ('caption = "ELU against ReLU"\n', "", "figure 1: no caption"),
+        ('caption = "ELU against ReLU"', 'caption = ""', "figure 1: no caption"),
         ('source = "preset 4"\n', 'source = "preset 4"\n\n[[figure.plot]]\nx = "tau"\n',
          "figure fig6.7, plot 1: x is 'tau', which not every line samples"),
         ("[flags]", "[flags", "Expected ']'"),
@@ -213,6 +214,13 @@ def test_the_loader_refuses_a_malformed_data_file(tmp_path, old, new, message):
     with pytest.raises(figures.DataError, match=re.escape(message)) as error:
         figures.load_figures(path)
     assert str(error.value).startswith(f"{figures.display(path)}: ")
+
+
+def test_a_line_of_the_scripts_defaults_has_empty_flags(tmp_path):
+    """The one key that may be empty: flags, "" for the script's defaults (as atari_figures'
+    lines are; both read their files with figure_sweeps.table)."""
+    figure, *_ = figures.load_figures(write_data(tmp_path, '"{FF} --activation relu"', '""'))
+    assert figure.lines[0].flags == "" and figure.lines[0].argv == []
 
 
 def test_the_loader_refuses_a_chain_of_same_as(tmp_path):
