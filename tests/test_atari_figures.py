@@ -150,8 +150,13 @@ def test_bad_arguments_exit_2_with_one_line_and_create_nothing(tmp_path, args, m
 def test_a_malformed_data_file_exits_2_with_one_line(tmp_path, monkeypatch):
     text = figures.DATA.read_text()
     for old, new, message in [
-        ('slug = "lws"', 'slug = "ff"', "two lines with the same slug"),
-        ('games = ["Pong"]', "games = 3", "games has the wrong type"),
+        ('slug = "lws"', 'slug = "ff"', "two lines with slug 'ff'"),
+        ('games = ["Pong"]', "games = 3", "games must be a list"),
+        (
+            'caption = "A3C FF, LWS and WW on Beam Rider (a) and Breakout (b)"',
+            'caption = ""',
+            "figure 1: no caption",
+        ),
         ('same_as = "fig6.9/ff"', 'same_as = "fig6.9/nope"', "is no FIG/SLUG"),
         ('script = "a3c_ww.py"', 'script = "a3c_zz.py"', "is not in"),
         ('[[figure]]\nid = "fig6.9"', '[[figure]\nid = "fig6.9"', "atari_figures.toml"),

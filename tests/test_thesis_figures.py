@@ -28,6 +28,7 @@ REQUIRED = ["fig6.3", "fig6.5", "fig6.6", "fig6.7", "fig6.8", "fig7.1", "fig7.2"
 NOT_LINE_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "evaluate",
                   "eval-interval", "num-workers", "learning-rate"}  # fmt: skip
 
+from a3c_tools import figure_sweeps  # noqa: E402
 from a3c_tools import plot_sweep as plot_sweep  # noqa: E402
 from a3c_tools import sweep as sweep  # noqa: E402
 from a3c_tools import thesis_figures as figures  # noqa: E402
@@ -198,6 +199,7 @@ def test_the_loader_reads_a_data_file(tmp_path):
         ("ELU = 0.5", "Elu = 0.5", "fig6.7: numbers name 'Elu', which is no line's label"),
         ("ELU = 0.5", 'ELU = "0.5"', "fig6.7: numbers: 'ELU' = '0.5' is not a number"),
         ('caption = "ELU against ReLU"\n', "", "figure 1: no caption"),
+        ('caption = "ELU against ReLU"', 'caption = ""', "figure 1: no caption"),
         ('source = "preset 4"\n', 'source = "preset 4"\n\n[[figure.plot]]\nx = "tau"\n',
          "figure fig6.7, plot 1: x is 'tau', which not every line samples"),
         ("[flags]", "[flags", "Expected ']'"),
@@ -212,6 +214,13 @@ def test_the_loader_refuses_a_malformed_data_file(tmp_path, old, new, message):
     with pytest.raises(figures.DataError, match=re.escape(message)) as error:
         figures.load_figures(path)
     assert str(error.value).startswith(f"{figures.display(path)}: ")
+
+
+def test_a_line_of_the_scripts_defaults_has_empty_flags(tmp_path):
+    """The one key that may be empty: flags, "" for the script's defaults (as atari_figures'
+    lines are; both read their files with figure_sweeps.table)."""
+    figure, *_ = figures.load_figures(write_data(tmp_path, '"{FF} --activation relu"', '""'))
+    assert figure.lines[0].flags == "" and figure.lines[0].argv == []
 
 
 def test_the_loader_refuses_a_chain_of_same_as(tmp_path):
@@ -415,7 +424,7 @@ def fake_table(folder: Path, runs: int, samples: list[str]) -> None:
 def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch):
     """With the sweeps stood in for: each line is swept in rounds of --round runs, then the
     figure is drawn (the thesis's numbers beside its bars) and summarised in FIG.md."""
-    real_execute = figures.execute
+    real_execute = figure_sweeps.execute
     calls = []
 
     def execute(command, capture=False):
@@ -428,7 +437,7 @@ def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch)
         fake_table(Path(own[own.index("--out") + 1]), runs, samples)
         return 0, ""
 
-    monkeypatch.setattr(figures, "execute", execute)
+    monkeypatch.setattr(figure_sweeps, "execute", execute)
     out = tmp_path / "out"
     argv = ["fig7.6", "--runs", "3", "--steps", "1000", "--round", "2", "--out", str(out)]
     assert figures.main(argv) == 0
@@ -450,7 +459,7 @@ def test_a_figure_runs_its_sweeps_in_rounds_then_draws_it(tmp_path, monkeypatch)
 def test_a_shared_line_is_swept_once_per_round(tmp_path, monkeypatch):
     """Figures 6.6 and 6.8 both show fig6.7's ReLU runs: one sweep of them per round, and both
     figures plot them under their own labels."""
-    real_execute = figures.execute
+    real_execute = figure_sweeps.execute
     calls = []
 
     def execute(command, capture=False):
@@ -463,7 +472,7 @@ def test_a_shared_line_is_swept_once_per_round(tmp_path, monkeypatch):
         fake_table(out, int(own[own.index("--runs") + 1]), samples)
         return 0, ""
 
-    monkeypatch.setattr(figures, "execute", execute)
+    monkeypatch.setattr(figure_sweeps, "execute", execute)
     out = tmp_path / "out"
     argv = ["fig6.6", "fig6.8", "--runs", "2", "--steps", "1000", "--out", str(out)]
     assert figures.main(argv) == 0
@@ -482,7 +491,7 @@ def test_an_interrupted_sweep_stops_the_figure(tmp_path, monkeypatch):
         calls.append(command)
         return 130, ""
 
-    monkeypatch.setattr(figures, "execute", execute)
+    monkeypatch.setattr(figure_sweeps, "execute", execute)
     out = tmp_path / "out"
     assert figures.main(["fig6.7", "--runs", "2", "--steps", "100", "--out", str(out)]) == 130
     assert len(calls) == 1  # no other sweep, no plot
@@ -523,7 +532,7 @@ def test_plot_sweep_rejects_a_bad_reference(tmp_path, reference, capsys):
 def test_a_figure_with_a_joint_sample_is_drawn_against_each(tmp_path, monkeypatch):
     """Figure A.1 samples c_g with the learning rate: one plot against each, and the thesis's
     map of the runs over both."""
-    real_execute = figures.execute
+    real_execute = figure_sweeps.execute
 
     def execute(command, capture=False):
         if command[:2] == figures.PLOT:
@@ -533,7 +542,7 @@ def test_a_figure_with_a_joint_sample_is_drawn_against_each(tmp_path, monkeypatc
         fake_table(Path(own[own.index("--out") + 1]), 4, samples)
         return 0, ""
 
-    monkeypatch.setattr(figures, "execute", execute)
+    monkeypatch.setattr(figure_sweeps, "execute", execute)
     out = tmp_path / "out"
     assert figures.main(["A.1", "--runs", "4", "--steps", "1000", "--out", str(out)]) == 0
     for name in ("figA.1.png", "figA.1-grad-clip.png", "figA.1-learning-rate-grad-clip.png"):

@@ -8,13 +8,16 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
   (its figures are data: thesis_figures.toml);
 - `atari_figures`: the thesis's Atari figures (6.9, 6.10, 7.8) over seeds, through `sweep`, drawn
   with a shaded band (its figures are data: atari_figures.toml);
+  it and `thesis_figures` share `figure_sweeps` (the figures files' checks, the sweeps in
+  rounds, the command line);
 - `thesis_claims`: the claims page (docs/claims.md) and its forest plot from the committed
   results (thesis_claims.toml);
 - `compare`: two scripts, or one with two flag sets, at the same learning rates and run seeds:
   the paired effect, its 95% interval, a verdict and a figure (docs/testing-your-idea.md); it
   and `thesis_claims` share `paired` (the pairing, the t interval, the verdict rule);
 - `future_work_summary`, `future_work_initial_policy`, `future_work_trained_scale`,
-  `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch);
+  `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch,
+  the folder `future_work_runs` reads from their command line);
 - `training_scalars`: a run's TensorBoard training scalars by 1M steps;
 - `record_play`: a checkpoint's agent playing one episode, as an animated GIF;
 - `atari_report`: the Atari lines across seeds and games (the IQM, means with t intervals over

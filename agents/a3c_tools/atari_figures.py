@@ -60,17 +60,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import run_main
-from a3c_tools.thesis_figures import DataError, Parser, display, execute, plural, positive_int
+from a3c_tools import AGENTS, figure_sweeps, run_main
+from a3c_tools.figure_sweeps import DataError, display, plural, positive_int
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
-
-ROOT = Path(__file__).resolve().parents[2]  # the repository
-AGENTS = ROOT / "agents"
-SWEEP = ["-m", "a3c_tools.sweep"]
 DATA = Path(__file__).with_name("atari_figures.toml")
 EVAL_INTERVAL = 1_000_000  # the thesis's: an evaluation every 1M steps
 EVAL_EPISODES = 10  # the thesis: 50
@@ -136,51 +128,24 @@ KEYS = {
 }  # fmt: skip
 
 
-def table(entry: object, kind: str, where: str) -> dict:
-    """A table of the data file checked against KEYS, its strings' whitespace runs one space."""
-    keys = {key.rstrip("?"): (types, key[-1] != "?") for key, types in KEYS[kind].items()}
-    if not isinstance(entry, dict):
-        raise DataError(f"{where}: expected a table, got {entry!r}")
-    for key, value in entry.items():
-        if key not in keys:
-            raise DataError(f"{where}: unknown key {key!r} (a {kind} has {', '.join(keys)})")
-        if not isinstance(value, keys[key][0]) or isinstance(value, bool):
-            raise DataError(f"{where}: {key} has the wrong type: {value!r}")
-    for key, (_, required) in keys.items():
-        if required and key not in entry:
-            raise DataError(f"{where}: no {key}")
-    return {key: " ".join(v.split()) if isinstance(v, str) else v for key, v in entry.items()}
-
-
-def words(text: str, where: str) -> list[str]:
-    try:
-        return shlex.split(text)
-    except ValueError as error:
-        raise DataError(f"{where}: not shell words ({error}): {text}") from None
-
-
 def read_figure(entry: object, file: str, index: int) -> Figure:
-    figure = table(entry, "figure", f"{file}: figure {index}")
+    figure = figure_sweeps.table(entry, KEYS["figure"], "figure", f"{file}: figure {index}")
     where = f"{file}: figure {figure['id']}"
     games = figure["games"]
-    if not games or not all(isinstance(g, str) and g.isidentifier() for g in games):
+    if not all(isinstance(g, str) and g.isidentifier() for g in games):
         raise DataError(f"{where}: games must be a list of names, got {games!r}")
     lines = []
     for i, raw in enumerate(figure["line"], 1):
-        line = table(raw, "line", f"{where}, line {i}")
+        line = figure_sweeps.table(raw, KEYS["line"], "line", f"{where}, line {i}")
         at = f"{where}, line {line['slug']}"
-        if not (AGENTS / line["script"]).is_file() or "/" in line["script"]:
-            raise DataError(f"{at}: script {line['script']!r} is not in {display(AGENTS)}/")
-        if line["slug"] != Path(line["slug"]).name or " " in line["slug"] or not line["slug"]:
-            raise DataError(f"{at}: slug {line['slug']!r} is not a plain folder name")
-        words(line["flags"], at)
+        figure_sweeps.check_line(line, at)
+        figure_sweeps.words(line["flags"], at)
         lines.append(Line(**line))
     slugs = [line.slug for line in lines]
-    if len(set(slugs)) != len(slugs):
-        raise DataError(f"{where}: two lines with the same slug")
+    figure_sweeps.check_unique(slugs, "lines with slug", where)
     numbers = []
     for i, raw in enumerate(figure.get("number", []), 1):
-        number = table(raw, "number", f"{where}, number {i}")
+        number = figure_sweeps.table(raw, KEYS["number"], "number", f"{where}, number {i}")
         if number["game"] not in games or number["line"] not in slugs:
             raise DataError(f"{where}, number {i}: no game {number['game']!r} or line "
                             f"{number['line']!r} in this figure")  # fmt: skip
@@ -191,34 +156,23 @@ def read_figure(entry: object, file: str, index: int) -> Figure:
 
 def load_data(path: Path = DATA) -> Data:
     """The figures of a data file (atari_figures.toml), checked; a DataError if malformed."""
-    file = display(path)
-    try:
-        data = table(tomllib.loads(path.read_text(encoding="utf-8")), "file", file)
-    except (OSError, tomllib.TOMLDecodeError) as error:
-        raise DataError(f"{file}: {error}") from None
+    file, data = figure_sweeps.read_file(path, KEYS["file"])
     if "{game}" not in data["env"]:
         raise DataError(f"{file}: env {data['env']!r} has no {{game}}")
-    words(data["common"], f"{file}: common")
+    figure_sweeps.words(data["common"], f"{file}: common")
     figures = tuple(read_figure(entry, file, i) for i, entry in enumerate(data["figure"], 1))
-    ids = [figure.id for figure in figures]
-    if len(set(ids)) != len(ids):
-        raise DataError(f"{file}: two figures with the same id")
-    lines = {
-        f"{figure.id}/{line.slug}": (figure, line) for figure in figures for line in figure.lines
-    }
-    for figure in figures:
-        for line in figure.lines:
-            if not line.same_as:
-                continue
-            where = f"{file}: figure {figure.id}, line {line.slug}: same_as {line.same_as!r}"
-            target = lines.get(line.same_as)
-            if target is None or target[1].same_as:
-                raise DataError(f"{where} is no FIG/SLUG of a line with its own runs")
-            if (target[1].script, target[1].argv) != (line.script, line.argv):
-                raise DataError(f"{where} runs another script or other flags")
-            if not set(figure.games) <= set(target[0].games):
-                raise DataError(f"{where} does not run every game of {figure.id}")
+    figure_sweeps.check_unique([figure.id for figure in figures], "figures with id", file)
+    figure_sweeps.check_same_as(figures, file, other_runs)
     return Data(data["env"], data["common"], figures)
+
+
+def other_runs(figure: Figure, line: Line, owner: Figure, target: Line) -> str | None:
+    """What keeps a line from sharing the runs of target, its same_as (None: nothing)."""
+    if (target.script, target.argv) != (line.script, line.argv):
+        return "runs another script or other flags"
+    if not set(figure.games) <= set(owner.games):
+        return f"does not run every game of {figure.id}"
+    return None
 
 
 @functools.cache
@@ -236,12 +190,7 @@ def by_id(figure: str) -> Figure:
 
 def figure_id(text: str) -> str | None:
     """fig6.9, Fig6.9, 6.9, figure6.9 -> fig6.9; None when there is no such figure."""
-    key = text.strip().lower()
-    for prefix in ("figure", "fig"):
-        if key.startswith(prefix):
-            key = key[len(prefix) :].lstrip(" ._-")
-            break
-    return f"fig{key}" if f"fig{key}" in figure_ids() else None
+    return figure_sweeps.figure_id(text, figure_ids())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -249,10 +198,8 @@ def figure_id(text: str) -> str | None:
 # ------------------------------------------------------------------------------------------------
 def run_as(figure: Figure, line: Line) -> tuple[str, Line]:
     """The figure id and line whose runs a line's are: its own, or its same_as line's."""
-    if not line.same_as:
-        return figure.id, line
-    fig, slug = line.same_as.split("/")
-    return fig, next(other for other in by_id(fig).lines if other.slug == slug)
+    owner, own = figure_sweeps.run_as(figure, line, by_id)
+    return owner.id, own
 
 
 def line_folder(out: Path, figure: Figure, game: str, line: Line) -> Path:
@@ -265,7 +212,7 @@ def sweep_command(
 ) -> list[str]:
     """The sweep.py command of one line on one game (without the interpreter)."""
     _, own = run_as(figure, line)
-    command = [*SWEEP, display(AGENTS / own.script), "--out"]
+    command = [*figure_sweeps.SWEEP, display(AGENTS / own.script), "--out"]
     command += [str(line_folder(Path(options.out), figure, game, line)), "--runs", str(runs)]
     command += ["--total-timesteps", str(options.steps), "--seed", str(SEED)]
     command += ["--backend", options.backend]
@@ -284,32 +231,27 @@ def selected(figure: Figure, options: argparse.Namespace) -> tuple[list[str], li
     return games, lines
 
 
+def selected_runs(figure: Figure, options: argparse.Namespace) -> list[tuple[str, Line]]:
+    """The selected (game, line) pairs of a figure, game by game."""
+    games, lines = selected(figure, options)
+    return [(game, line) for game in games for line in lines]
+
+
 def run_figures(figures: list[Figure], options: argparse.Namespace) -> int:
     """Run every selected line of the figures, a seed of each at a time locally, then draw."""
-    rounds = range(1, options.seeds + 1) if options.backend == "local" else [options.seeds]
-    failed = []
-    for target in rounds:
-        done: set[Path] = set()  # a shared line's runs are made once per round
-        for figure in figures:
-            games, lines = selected(figure, options)
-            for game in games:
-                for line in lines:
-                    where = line_folder(Path(options.out), figure, game, line)
-                    print(f"== {figure.id} {game} {line.label}: {plural(target, 'seed')}")
-                    if where in done:
-                        continue
-                    done.add(where)
-                    code, _ = execute(sweep_command(figure, game, line, options, target))
-                    if code in (2, 130):
-                        return code
-                    if code == 1 and target == options.seeds:
-                        failed.append(f"{figure.id} {game} {line.label}")
-    for figure in figures:
-        draw(figure, options)
-    if failed:
-        print(f"every run failed: {', '.join(failed)}", file=sys.stderr)
-        return 1
-    return 0
+    sweeps = [
+        figure_sweeps.Sweep(
+            f"{figure.id} {game} {line.label}",
+            line_folder(Path(options.out), figure, game, line),
+            functools.partial(sweep_command, figure, game, line, options),
+        )
+        for figure in figures
+        for game, line in selected_runs(figure, options)
+    ]
+    rounds = list(range(1, options.seeds + 1)) if options.backend == "local" else [options.seeds]
+    return figure_sweeps.run_sweeps(
+        sweeps, rounds, "seed", lambda: [draw(f, options) for f in figures]
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -465,19 +407,17 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     import os
 
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    parser = Parser(
-        prog="python -m a3c_tools.atari_figures",
-        usage="%(prog)s FIG [FIG ...] --out OUT --seeds N --steps S [options]\n"
+    parser = figure_sweeps.figure_parser(
+        "atari_figures",
+        "%(prog)s FIG [FIG ...] --out OUT --seeds N --steps S [options]\n"
         "       %(prog)s FIG [FIG ...] --out OUT --plot-only\n"
         "       %(prog)s FIG [FIG ...] --dry-run [--out OUT] [--seeds N] [--steps S] [options]\n"
         "       %(prog)s --list [FIG ...]",
-        description="Run a thesis Atari figure's lines over seeds through a3c_tools.sweep and "
-        "draw it. See the module docstring for more.",
+        "Run a thesis Atari figure's lines over seeds through a3c_tools.sweep and draw it. See "
+        "the module docstring for more.",
+        figure_ids(),
+        "the commands",
     )
-    ids = ", ".join(figure_ids())
-    parser.add_argument("figures", nargs="*", metavar="FIG", help=f"figure ids ({ids}) or all")
-    parser.add_argument("--list", action="store_true", help="print the figures, lines and flags")
-    parser.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
     parser.add_argument("--plot-only", action="store_true", help="draw the runs there are")
     parser.add_argument("--out", default=None, help="the output folder (gets OUT/FIG/GAME/LINE)")
     parser.add_argument("--seeds", type=positive_int, default=None, help="runs per line")
@@ -502,20 +442,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         default=cores,
         help=f"workers per run (default: this machine's cores, {cores})",
     )
-    parser.add_argument("--backend", choices=["local", "ray"], default="local")
-    parser.add_argument("--address", default=None, help="with --backend ray: a running cluster")
-    parser.add_argument("--cpus", type=positive_int, default=None, help="passed to sweep.py")
+    figure_sweeps.add_backend_arguments(parser)
     options = parser.parse_args(argv)
-    chosen = []
-    for text in options.figures:
-        if text.lower() == "all":
-            chosen += figure_ids()
-            continue
-        found = figure_id(text)
-        if found is None:
-            parser.error(f"unknown figure {text!r}; valid: {ids}, all")
-        chosen.append(found)
-    options.ids = list(dict.fromkeys(chosen))
+    options.ids = figure_sweeps.chosen_figures(parser, options.figures, figure_ids())
     figures = [by_id(i) for i in options.ids] or list(data().figures)
     games = list(dict.fromkeys(g for figure in figures for g in figure.games))
     if options.games:
@@ -532,51 +461,30 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 parser.error(f"unknown line {slug!r}; valid: {', '.join(slugs)}")
     if options.list:
         return options
-    if not options.ids:
-        parser.error(f"name a figure: {ids}, all (or --list)")
-    needed = ["out"] if options.plot_only else [] if options.dry_run else ["out", "seeds", "steps"]
-    missing = [f"--{flag}" for flag in needed if getattr(options, flag) is None]
-    if missing:
-        parser.error(f"the following arguments are required: {', '.join(missing)}")
-    if options.address and options.backend != "ray":
-        parser.error("--address needs --backend ray")
+    figure_sweeps.check_run_options(
+        parser, options, figure_ids(), ["out"] if options.plot_only else ["out", "seeds", "steps"]
+    )
     return options
 
 
+def dry_run(figure: Figure, options: argparse.Namespace) -> list[list[str]]:
+    """A figure's commands: a sweep per selected game and line."""
+    runs = selected_runs(figure, options)
+    return [sweep_command(figure, game, line, options, options.seeds) for game, line in runs]
+
+
 def main(argv: list[str] | None = None) -> int:
-    try:
-        data()
-    except DataError as error:
-        print(f"atari_figures: error: {error}", file=sys.stderr)
-        return 2
+    code = figure_sweeps.data_or_exit(data, "atari_figures")
+    if code is not None:
+        return code
     options = parse_args(sys.argv[1:] if argv is None else argv)
     figures = [by_id(i) for i in options.ids] if options.ids else list(data().figures)
-    if options.list:
-        print(list_figures(figures))
-        return 0
-    if options.plot_only:
+    if options.plot_only and not options.list:
         drawn = [draw(figure, options) for figure in figures]
         return 0 if any(drawn) else 1
-    if options.dry_run:
-        missing = {flag: flag.upper() for flag in ("out", "seeds", "steps")
-                   if getattr(options, flag) is None}  # fmt: skip
-        for flag, text in missing.items():
-            setattr(options, flag, text)
-        if missing:
-            print("# " + ", ".join(f"{text} stands for --{flag}" for flag, text in missing.items()))
-        printed = set()
-        for figure in figures:
-            print(f"# {figure.id}: {figure.caption}")
-            games, lines = selected(figure, options)
-            for game in games:
-                for line in lines:
-                    command = shlex.join(
-                        ["python", *sweep_command(figure, game, line, options, options.seeds)]
-                    )
-                    print(f"# (the runs above) {command}" if command in printed else command)
-                    printed.add(command)
-        return 0
-    return run_figures(figures, options)
+    return figure_sweeps.run_command(
+        options, figures, list_figures, dry_run, "(the runs above)", run_figures
+    )
 
 
 if __name__ == "__main__":

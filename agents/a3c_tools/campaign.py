@@ -46,7 +46,7 @@ from pathlib import Path
 
 from a3c_tools import ROOT, run_main
 from a3c_tools import atari_figures as af
-from a3c_tools.thesis_figures import DataError, Parser, execute
+from a3c_tools.figure_sweeps import DataError, Parser, execute
 
 try:
     import tomllib

@@ -77,14 +77,9 @@ from pathlib import Path
 import numpy as np
 
 from a3c_tools import AGENTS, load_script, paired, run_main, sweep
+from a3c_tools.figure_sweeps import Parser, positive_int
 from a3c_tools.plot_sweep import smooth_curve
-from a3c_tools.thesis_figures import (
-    EVALUATIONS_PER_RUN,
-    Parser,
-    eval_interval,
-    lr_range,
-    positive_int,
-)
+from a3c_tools.thesis_figures import EVALUATIONS_PER_RUN, eval_interval, lr_range
 
 DEFAULT_RUNS = 8  # the claims page's budget: 8 learning rates x 250k steps x 1 worker
 DEFAULT_STEPS = 250_000

@@ -11,15 +11,14 @@ first).
 
 from __future__ import annotations
 
-import argparse
 import ast
 import csv
 import re
 from pathlib import Path
 
-from a3c_tools import ROOT, run_main
+from a3c_tools import run_main
+from a3c_tools.future_work_runs import folder_argument
 
-FOLDER = ROOT / "results" / "future_work_catch"
 CONFIGS = ("lpq_growth", "glpq_growth")
 LINE = re.compile(
     r"prototype growth at step ([\d,]+): pruned for actions (\[[^\]]*\]), grown for (\[[^\]]*\]);"
@@ -29,12 +28,15 @@ HEADER = ("config       run       growth steps that changed something   pruned  
           "active per action at the end (the defaults: 16 at the start, 32 slots)")  # fmt: skip
 
 
+def configs_run(folder: Path) -> list[str]:
+    """The growth configurations that have run in folder (a results.csv)."""
+    return [config for config in CONFIGS if (folder / config / "results.csv").is_file()]
+
+
 def growth_rows(folder: Path) -> list[str]:
     """One line per finished run of each growth configuration in folder."""
     rows = []
-    for config in CONFIGS:
-        if not (folder / config / "results.csv").is_file():
-            continue
+    for config in configs_run(folder):
         with open(folder / config / "results.csv", newline="") as f:
             finished = sorted(r["run_id"] for r in csv.DictReader(f) if r["status"] == "ok")
         for run_id in finished:
@@ -50,27 +52,9 @@ def growth_rows(folder: Path) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.future_work_growth",
-        description="Growth steps, prototypes pruned and grown, per run.",
-    )
-    parser.add_argument(
-        "folder",
-        nargs="?",
-        type=Path,
-        default=FOLDER,
-        help="the configurations' folder (default results/future_work_catch)",
-    )
-    folder = parser.parse_args(argv).folder
-    missing = [
-        str(folder / c / "runs") for c in CONFIGS
-        if (folder / c / "results.csv").is_file() and not (folder / c / "runs").is_dir()
-    ]  # fmt: skip
-    if missing:
-        parser.error(f"no run folders ({', '.join(missing)}): run the configurations first")
-    print(HEADER)
-    for row in growth_rows(folder):
-        print(row)
+    about = "Growth steps, prototypes pruned and grown, per run."
+    folder = folder_argument("future_work_growth", about, argv, configs_run)
+    print("\n".join([HEADER, *growth_rows(folder)]))
     return 0
 
 

@@ -13,16 +13,15 @@ The paired comparisons with their intervals are on docs/claims.md.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import statistics
 from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ROOT, run_main
+from a3c_tools import run_main
+from a3c_tools.future_work_runs import folder_argument
 
-FOLDER = ROOT / "results" / "future_work_catch"
 # (panel title, [(baseline, variant), ...]): each idea against the thesis's version of its script
 PANELS = [
     ("prototype value head", [("lpq", "lpq_value"), ("glpq", "glpq_value")]),
@@ -114,20 +113,8 @@ def plot(rows: list[dict[str, str]], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.future_work_summary",
-        description="The future-work runs' scores (stdout), curves.csv and curves.png.",
-    )
-    parser.add_argument(
-        "folder",
-        nargs="?",
-        type=Path,
-        default=FOLDER,
-        help="the configurations' folder (default results/future_work_catch)",
-    )
-    folder = parser.parse_args(argv).folder
-    if not folder.is_dir():
-        parser.error(f"{folder} is not a folder")
+    about = "The future-work runs' scores (stdout), curves.csv and curves.png."
+    folder = folder_argument("future_work_summary", about, argv)
     print("| configuration | runs | score (final 5), mean +- s.e. over runs | runs' scores |")
     print("|---|---:|---|---|")
     for config in CONFIGS:

@@ -16,7 +16,6 @@ nearest one).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import sys
 from pathlib import Path
@@ -24,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from a3c_tools import AGENTS, ROOT, load_script, run_main
+from a3c_tools import AGENTS, load_script, run_main
 from a3c_tools.future_work_initial_policy import features
+from a3c_tools.future_work_runs import folder_argument
 
-FOLDER = ROOT / "results" / "future_work_catch"
 CONFIGS = {
     "glpq": AGENTS / "a3c_glpq.py",
     "glpq_data": AGENTS / "future_work" / "a3c_glpq_data_init.py",
@@ -90,21 +89,8 @@ def scale_rows(folder: Path) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.future_work_trained_scale",
-        description="GLPQ's features and prototypes at the start and end of each run.",
-    )
-    parser.add_argument(
-        "folder",
-        nargs="?",
-        type=Path,
-        default=FOLDER,
-        help="the configurations' folder (default results/future_work_catch)",
-    )
-    folder = parser.parse_args(argv).folder
-    missing = [str(folder / c / "runs") for c in CONFIGS if not (folder / c / "runs").is_dir()]
-    if missing:
-        parser.error(f"no run folders ({', '.join(missing)}): run the configurations first")
+    about = "GLPQ's features and prototypes at the start and end of each run."
+    folder = folder_argument("future_work_trained_scale", about, argv, lambda folder: CONFIGS)
     from a3c_runtime import UsageError
 
     try:
@@ -112,9 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as e:  # a missing, changed or foreign checkpoint: one line
         print(f"error: {e}", file=sys.stderr)
         return 2
-    print(HEADER)
-    for row in rows:
-        print(row)
+    print("\n".join([HEADER, *rows]))
     return 0
 
 

@@ -351,24 +351,14 @@ def main(argv: list[str] | None = None) -> int:
         help="a second column sampled jointly with x: draw a map of the runs (log10 x against "
         "log10 y, coloured by score) instead of curves",
     )
-    parser.add_argument(
-        "--xrange",
-        nargs=2,
-        type=float,
-        default=None,
-        metavar=("LOW", "HIGH"),
-        help="x axis range (default: the whole decades around the data, -6 -2 "
-        "for the thesis's sweeps)",
-    )
-    parser.add_argument(
-        "--bar-range",
-        nargs=2,
-        type=float,
-        default=None,
-        metavar=("LOW", "HIGH"),
-        help="x values averaged in the bar chart (default: the range the sweeps sampled, from "
-        "their sweep.json, else the runs' range; 1e-5 1e-2 in the thesis's sweeps)",
-    )
+    for flag, help in (
+        ("--xrange", "x axis range (default: the whole decades around the data, -6 -2 for the "
+         "thesis's sweeps)"),
+        ("--bar-range", "x values averaged in the bar chart (default: the range the sweeps "
+         "sampled, from their sweep.json, else the runs' range; 1e-5 1e-2 in the thesis's "
+         "sweeps)"),
+    ):  # fmt: skip
+        parser.add_argument(flag, nargs=2, type=float, metavar=("LOW", "HIGH"), help=help)
     parser.add_argument("--title", default=None)
     parser.add_argument(
         "--reference",

@@ -48,24 +48,15 @@ from __future__ import annotations
 import argparse
 import functools
 import math
-import os
 import re
 import shlex
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import run_main
+from a3c_tools import AGENTS, figure_sweeps, run_main
+from a3c_tools.figure_sweeps import DataError, display, execute, plural, positive_int
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
-
-ROOT = Path(__file__).resolve().parents[2]  # the repository
-AGENTS = ROOT / "agents"
-SWEEP = ["-m", "a3c_tools.sweep"]  # the tools, run with this interpreter
 PLOT = ["-m", "a3c_tools.plot_sweep"]
 DATA = Path(__file__).with_name("thesis_figures.toml")  # the figures: lines, flags, evidence
 DEFAULT_LR_RANGE = (1e-5, 1e-2)  # the range the thesis's bars average over
@@ -121,19 +112,9 @@ class Figure:
         return self.id.removeprefix("fig")
 
 
-def display(path: Path) -> str:
-    """A path as the commands show it: relative to the working directory when inside it."""
-    relative = os.path.relpath(path)
-    return relative if not relative.startswith("..") else str(path)
-
-
 # ------------------------------------------------------------------------------------------------
 # The figures, read from thesis_figures.toml and checked
 # ------------------------------------------------------------------------------------------------
-class DataError(ValueError):
-    """A malformed data file: the message names the figure and line, and the problem."""
-
-
 # The keys of the data file's tables, and their types; "?" marks an optional key.
 KEYS = {
     "file": {"flags?": dict, "figure": list},
@@ -143,41 +124,17 @@ KEYS = {
              "samples?": list, "approximation?": str, "same_as?": str},
     "plot": {"x": str, "y?": str, "bar_range?": list},
 }  # fmt: skip
-TYPES = {str: "a string", list: "a list", dict: "a table"}
 FRAGMENT = re.compile(r"\{(\w+)\}")  # {NAME} in a line's flags: NAME of the [flags] table
 
 
-def table(entry: object, kind: str, where: str) -> dict:
-    """A table of the data file, checked against KEYS; its strings with every run of whitespace
-    (line breaks included) as one space."""
-    keys = {key.rstrip("?"): (type_, key[-1] != "?") for key, type_ in KEYS[kind].items()}
-    if not isinstance(entry, dict):
-        raise DataError(f"{where}: expected a table, got {entry!r}")
-    for key, value in entry.items():
-        if key not in keys:
-            raise DataError(f"{where}: unknown key {key!r} (a {kind} has {', '.join(keys)})")
-        if not isinstance(value, keys[key][0]):
-            raise DataError(f"{where}: {key} must be {TYPES[keys[key][0]]}, got {value!r}")
-    for key, (_, required) in keys.items():
-        if required and not entry.get(key):
-            raise DataError(f"{where}: no {key}")
-    return {key: " ".join(v.split()) if isinstance(v, str) else v for key, v in entry.items()}
-
-
 def read_line(entry: object, where: str, fragments: dict[str, str]) -> Line:
-    line = table(entry, "line", where)
-    if Path(line["script"]).name != line["script"] or not (AGENTS / line["script"]).is_file():
-        raise DataError(f"{where}: script {line['script']!r} is not in {display(AGENTS)}/")
-    if line["slug"] != Path(line["slug"]).name or " " in line["slug"]:
-        raise DataError(f"{where}: slug {line['slug']!r} is not a plain folder name")
+    line = figure_sweeps.table(entry, KEYS["line"], "line", where)
+    figure_sweeps.check_line(line, where)
     for name in FRAGMENT.findall(line["flags"]):
         if name not in fragments:
             raise DataError(f"{where}: flags name {{{name}}}, which [flags] does not define")
     flags = FRAGMENT.sub(lambda match: fragments[match[1]], line["flags"])
-    try:
-        shlex.split(flags)
-    except ValueError as error:
-        raise DataError(f"{where}: flags are not shell words ({error}): {flags}") from None
+    figure_sweeps.words(flags, where)
     samples = line.get("samples", [])
     if not all(isinstance(sample, str) and all(sample.partition("=")) for sample in samples):
         raise DataError(f"{where}: samples must be NAME=DIST strings, got {samples!r}")
@@ -185,7 +142,7 @@ def read_line(entry: object, where: str, fragments: dict[str, str]) -> Line:
 
 
 def read_figure(entry: object, file: str, index: int, fragments: dict[str, str]) -> Figure:
-    figure = table(entry, "figure", f"{file}: figure {index}")
+    figure = figure_sweeps.table(entry, KEYS["figure"], "figure", f"{file}: figure {index}")
     where = f"{file}: figure {figure['id']}"
     lines = []
     for i, line in enumerate(figure["line"], 1):
@@ -193,10 +150,9 @@ def read_figure(entry: object, file: str, index: int, fragments: dict[str, str])
         at = f"{where}, line {i}" + (f" ({label})" if label else "")
         lines.append(read_line(line, at, fragments))
     for name in ("slug", "label"):
-        values = [getattr(line, name) for line in lines]
-        for value in values:
-            if values.count(value) > 1:
-                raise DataError(f"{where}: two lines with {name} {value!r}")
+        figure_sweeps.check_unique(
+            [getattr(line, name) for line in lines], f"lines with {name}", where
+        )
     numbers = tuple(figure.get("numbers", {}).items())
     for label, value in numbers:
         if label not in [line.label for line in lines]:
@@ -205,7 +161,8 @@ def read_figure(entry: object, file: str, index: int, fragments: dict[str, str])
             raise DataError(f"{where}: numbers: {label!r} = {value!r} is not a number")
     plots = [Plot()]  # every figure's plot against the learning rate, then one per [[plot]]
     for i, entry in enumerate(figure.get("plot", []), 1):
-        plot, at = table(entry, "plot", f"{where}, plot {i}"), f"{where}, plot {i}"
+        at = f"{where}, plot {i}"
+        plot = figure_sweeps.table(entry, KEYS["plot"], "plot", at)
         for axis in ("x", "y"):
             name = plot.get(axis)
             sampled = name == "learning-rate" or all(name in line.sample_names() for line in lines)
@@ -224,35 +181,24 @@ def read_figure(entry: object, file: str, index: int, fragments: dict[str, str])
 
 def load_figures(path: Path = DATA) -> tuple[Figure, ...]:
     """The figures of a data file (thesis_figures.toml), checked; a DataError if malformed."""
-    file = display(path)
-    try:
-        data = table(tomllib.loads(path.read_text(encoding="utf-8")), "file", file)
-    except (OSError, tomllib.TOMLDecodeError) as error:
-        raise DataError(f"{file}: {error}") from None
+    file, data = figure_sweeps.read_file(path, KEYS["file"])
     fragments = data.get("flags", {})
     for name, value in fragments.items():
         if not isinstance(value, str):
             raise DataError(f"{file}: [flags] {name} must be a string, got {value!r}")
         fragments[name] = " ".join(value.split())
     figures = [read_figure(entry, file, i, fragments) for i, entry in enumerate(data["figure"], 1)]
-    ids = [figure.id for figure in figures]
-    for id in ids:
-        if ids.count(id) > 1:
-            raise DataError(f"{file}: two figures with id {id!r}")
-    lines = {f"{figure.id}/{line.slug}": line for figure in figures for line in figure.lines}
-    for figure in figures:
-        for line in figure.lines:
-            if not line.same_as:
-                continue
-            where = f"{file}: figure {figure.id}, line {line.label!r}: same_as {line.same_as!r}"
-            target = lines.get(line.same_as)
-            if target is None:
-                raise DataError(f"{where} is no FIG/SLUG of this file")
-            if target.same_as:
-                raise DataError(f"{where} is itself same_as {target.same_as!r}; name that line")
-            if (target.script, target.samples) != (line.script, line.samples):
-                raise DataError(f"{where} runs another script or samples other flags")
+    figure_sweeps.check_unique([figure.id for figure in figures], "figures with id", file)
+    figure_sweeps.check_same_as(figures, file, other_sweep)
     return tuple(figures)
+
+
+def other_sweep(figure: Figure, line: Line, owner: Figure, target: Line) -> str | None:
+    """What keeps a line from sharing the runs of target, its same_as (None: nothing). Their
+    fixed flags may differ in spelling; a test checks that they parse to the same Args."""
+    if (target.script, target.samples) != (line.script, line.samples):
+        return "runs another script or samples other flags"
+    return None
 
 
 def folder(figure: Figure, line: Line) -> str:
@@ -262,10 +208,7 @@ def folder(figure: Figure, line: Line) -> str:
 
 def run_as(figure: Figure, line: Line) -> tuple[Figure, Line]:
     """The figure and line whose sweep a line's runs are: itself, or its same_as line."""
-    if not line.same_as:
-        return figure, line
-    fig, slug = line.same_as.split("/")
-    return by_id(fig), next(other for other in by_id(fig).lines if other.slug == slug)
+    return figure_sweeps.run_as(figure, line, by_id)
 
 
 @functools.cache
@@ -287,20 +230,14 @@ def by_id(figure: str) -> Figure:
 # ------------------------------------------------------------------------------------------------
 def figure_id(text: str) -> str | None:
     """The figure id for fig7.6, Fig7.6, 7.6, figa.1, A.1 ...; None when there is no such figure."""
-    key = text.strip().lower()
-    for prefix in ("figure", "fig"):
-        if key.startswith(prefix):
-            key = key[len(prefix) :].lstrip(" ._-")
-            break
-    key = f"fig{key.upper()}"
-    return key if key in figure_ids() else None
+    return figure_sweeps.figure_id(text, figure_ids())
 
 
 def sweep_command(figure: Figure, line: Line, options: argparse.Namespace, runs: int) -> list[str]:
     """The sweep.py command of one line (without the interpreter)."""
     low, high = options.lr_range
     command = [
-        *SWEEP,
+        *figure_sweeps.SWEEP,
         display(AGENTS / line.script),
         "--out",
         str(Path(options.out) / figure.id / line.slug),
@@ -329,8 +266,8 @@ def sweep_command(figure: Figure, line: Line, options: argparse.Namespace, runs:
     return command
 
 
-def plural(count: int, noun: str) -> str:
-    return f"{count} {noun}{'s' * (count != 1)}"
+def steps_text(steps: int | str) -> str:
+    return steps if isinstance(steps, str) else f"{steps:,}"
 
 
 def eval_interval(steps: int | str) -> int | str:
@@ -338,13 +275,6 @@ def eval_interval(steps: int | str) -> int | str:
     if isinstance(steps, str):
         return f"{steps}/{EVALUATIONS_PER_RUN}"
     return max(1, steps // EVALUATIONS_PER_RUN)
-
-
-def steps_text(steps: int | str) -> str:
-    return steps if isinstance(steps, str) else f"{steps:,}"
-
-
-PLACEHOLDERS = {"out": "OUT", "runs": "RUNS", "steps": "STEPS"}  # what a dry run may leave out
 
 
 def plot_commands(figure: Figure, options: argparse.Namespace) -> list[tuple[list[str], Path]]:
@@ -375,49 +305,23 @@ def plot_commands(figure: Figure, options: argparse.Namespace) -> list[tuple[lis
     return commands
 
 
-def execute(command: list[str], capture: bool = False) -> tuple[int, str]:
-    """Run a tool of this package with this interpreter: its exit code, and its stdout when
-    captured (echoed all the same). A Ctrl-C reaches the tool too (same process group): this
-    waits for it to stop its runs cleanly (sweep.py exits 130) rather than killing it."""
-    if capture:
-        result = subprocess.run([sys.executable, *command], stdout=subprocess.PIPE, text=True)
-        sys.stdout.write(result.stdout)
-        sys.stdout.flush()
-        return result.returncode, result.stdout
-    sys.stdout.flush()
-    process = subprocess.Popen([sys.executable, *command])
-    while True:
-        try:
-            return process.wait(), ""
-        except KeyboardInterrupt:
-            continue
-
-
 def run_figures(figures: list[Figure], options: argparse.Namespace) -> int:
     """Sweep every line of the figures (in rounds of --round runs), then draw each figure."""
     step = options.round or options.runs
-    failed = []
-    for target in [*range(step, options.runs, step), options.runs]:
-        swept: set[str] = set()  # the folders swept this round: a shared line's runs go once
-        for figure in figures:
-            for line in figure.lines:
-                where = folder(figure, line)
-                shared = f" (the runs of {where})" if line.same_as else ""
-                print(f"== {figure.id} {line.label}{shared}: {plural(target, 'run')}", flush=True)
-                if where in swept:
-                    continue
-                swept.add(where)
-                code, _ = execute(sweep_command(*run_as(figure, line), options, target))
-                if code in (2, 130):  # a folder with another sweep, or interrupted: stop here
-                    return code
-                if code == 1 and target == options.runs:
-                    failed.append(f"{figure.id} {line.label}")
-    for figure in figures:
-        draw(figure, options)
-    if failed:
-        print(f"every run failed: {', '.join(failed)}", file=sys.stderr)
-        return 1
-    return 0
+    sweeps = [
+        figure_sweeps.Sweep(
+            f"{figure.id} {line.label}",
+            Path(folder(figure, line)),
+            functools.partial(sweep_command, *run_as(figure, line), options),
+            f" (the runs of {folder(figure, line)})" if line.same_as else "",
+        )
+        for figure in figures
+        for line in figure.lines
+    ]
+    rounds = [*range(step, options.runs, step), options.runs]
+    return figure_sweeps.run_sweeps(
+        sweeps, rounds, "run", lambda: [draw(f, options) for f in figures]
+    )
 
 
 def draw(figure: Figure, options: argparse.Namespace) -> None:
@@ -498,23 +402,6 @@ def list_figures(figures: list[Figure]) -> str:
     return "\n".join(out)
 
 
-class Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        """One line, exit 2 (argparse's own error prints the usage too)."""
-        print(f"{self.prog}: error: {message} (see --help)", file=sys.stderr)
-        raise SystemExit(2)
-
-
-def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
 def lr_range(text: str) -> tuple[float, float]:
     try:
         low, high = (float(v) for v in text.split(":"))
@@ -526,20 +413,15 @@ def lr_range(text: str) -> tuple[float, float]:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = Parser(
-        prog="python -m a3c_tools.thesis_figures",
-        usage="%(prog)s FIG [FIG ...] --out OUT --runs N --steps S [options]\n"
+    parser = figure_sweeps.figure_parser(
+        "thesis_figures",
+        "%(prog)s FIG [FIG ...] --out OUT --runs N --steps S [options]\n"
         "       %(prog)s FIG [FIG ...] --dry-run [--out OUT] [--runs N] [--steps S] [options]\n"
         "       %(prog)s --list [FIG ...]",
-        description="Run a thesis Catch figure's lines as run, through a3c_tools.sweep, and draw "
-        "it with a3c_tools.plot_sweep. See the module docstring for more.",
-    )
-    parser.add_argument(
-        "figures", nargs="*", metavar="FIG", help=f"figure ids ({', '.join(figure_ids())}) or all"
-    )
-    parser.add_argument("--list", action="store_true", help="print the figures, lines and flags")
-    parser.add_argument(
-        "--dry-run", action="store_true", help="print the sweep and plot commands, run nothing"
+        "Run a thesis Catch figure's lines as run, through a3c_tools.sweep, and draw it with "
+        "a3c_tools.plot_sweep. See the module docstring for more.",
+        figure_ids(),
+        "the sweep and plot commands",
     )
     parser.add_argument("--out", default=None, help="the output folder (gets OUT/FIG/LINE)")
     parser.add_argument("--runs", type=positive_int, default=None, help="learning rates per line")
@@ -567,68 +449,33 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         metavar="K",
         help="run the lines in rounds of K more runs each (default: all runs of a line at once)",
     )
-    parser.add_argument("--backend", choices=["local", "ray"], default="local")
-    parser.add_argument("--address", default=None, help="with --backend ray: a running cluster")
-    parser.add_argument("--cpus", type=positive_int, default=None, help="passed to sweep.py")
+    figure_sweeps.add_backend_arguments(parser)
     parser.add_argument(
         "--max-concurrent", type=positive_int, default=None, help="passed to sweep.py"
     )
     options = parser.parse_args(argv)
     options.argv = list(argv)
-    ids = []
-    for text in options.figures:
-        if text.lower() == "all":
-            ids += figure_ids()
-            continue
-        found = figure_id(text)
-        if found is None:
-            parser.error(f"unknown figure {text!r}; valid: {', '.join(figure_ids())}, all")
-        ids.append(found)
-    options.ids = list(dict.fromkeys(ids))
+    options.ids = figure_sweeps.chosen_figures(parser, options.figures, figure_ids())
     if not options.list:
-        if not options.ids:
-            parser.error(f"name a figure: {', '.join(figure_ids())}, all (or --list)")
-        missing = [flag for flag in PLACEHOLDERS if getattr(options, flag) is None]
-        if missing and not options.dry_run:
-            parser.error(
-                "the following arguments are required: " + ", ".join(f"--{m}" for m in missing)
-            )
-        if options.address and options.backend != "ray":
-            parser.error("--address needs --backend ray")
+        figure_sweeps.check_run_options(parser, options, figure_ids(), ["out", "runs", "steps"])
     return options
 
 
+def dry_run(figure: Figure, options: argparse.Namespace) -> list[list[str]]:
+    """A figure's commands: its lines' sweeps, then its plots."""
+    sweeps = [sweep_command(*run_as(figure, line), options, options.runs) for line in figure.lines]
+    return sweeps + [command for command, _ in plot_commands(figure, options)]
+
+
 def main(argv: list[str] | None = None) -> int:
-    try:
-        all_figures()
-    except DataError as error:
-        print(f"thesis_figures: error: {error}", file=sys.stderr)
-        return 2
+    code = figure_sweeps.data_or_exit(all_figures, "thesis_figures")
+    if code is not None:
+        return code
     options = parse_args(sys.argv[1:] if argv is None else argv)
     figures = [by_id(i) for i in options.ids] if options.ids else list(all_figures())
-    if options.list:
-        print(list_figures(figures))
-        return 0
-    if options.dry_run:
-        missing = {flag: text for flag, text in PLACEHOLDERS.items()
-                   if getattr(options, flag) is None}  # fmt: skip
-        for flag, text in missing.items():
-            setattr(options, flag, text)
-        if missing:
-            print("# " + ", ".join(f"{text} stands for --{flag}" for flag, text in missing.items()))
-        printed = set()  # a line shared by figures is one sweep, run once
-        for figure in figures:
-            print(f"# {figure.id}: {figure.caption}")
-            for line in figure.lines:
-                command = shlex.join(
-                    ["python", *sweep_command(*run_as(figure, line), options, options.runs)]
-                )
-                print(f"# (the sweep above) {command}" if command in printed else command)
-                printed.add(command)
-            for command, _ in plot_commands(figure, options):
-                print(shlex.join(["python", *command]))
-        return 0
-    return run_figures(figures, options)
+    return figure_sweeps.run_command(
+        options, figures, list_figures, dry_run, "(the sweep above)", run_figures
+    )
 
 
 if __name__ == "__main__":
