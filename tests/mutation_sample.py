@@ -153,7 +153,13 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "mutation_sample")
     parser.add_argument("--size", type=int, default=110, help="mutants drawn (default 110)")
     parser.add_argument("--seed", type=int, default=53, help="the draw's seed (default 53)")
-    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per mutant")
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        default=None,
+        help="seconds per mutant (default: 3 times the unmutated fast tier's, 300 at least: a "
+        "mutant that hangs a test is not caught, and costs no more than that)",
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -185,13 +191,15 @@ def main() -> int:
         results_path = args.out / "results.tsv"
         done = {r["id"] for r in read_rows(results_path)}
         if "baseline" not in done:  # the unmutated fast tier must pass, or nothing is measured
-            status, failed, seconds = run_pytest(scratch, (), args.timeout)
+            status, failed, seconds = run_pytest(scratch, (), 3600.0)
             if status != "survived":
                 print(f"the unmutated fast tier does not pass ({status} {failed})", file=sys.stderr)
                 return 2
             row = {"id": "baseline", "status": "passes", "seconds": f"{seconds:.0f}",
                    "caught_by": ""}  # fmt: skip
             write_rows(results_path, [row], append=True)
+        baseline = next(r for r in read_rows(results_path) if r["id"] == "baseline")
+        timeout = args.timeout or max(300.0, 3 * float(baseline["seconds"]))
         every = sorted(
             p.relative_to(scratch).as_posix() for p in (scratch / "tests").glob("test_*.py")
         )
@@ -204,7 +212,7 @@ def main() -> int:
                 order = [*first, *(t for t in every if t not in first and t not in LAST)]
                 operator = plugins.get_operator(mutant["operator"])()
                 with use_mutation(scratch / mutant["file"], operator, mutant["occurrence"]):
-                    status, failed, seconds = run_pytest(scratch, tuple(order), args.timeout)
+                    status, failed, seconds = run_pytest(scratch, tuple(order), timeout)
             row = {"id": mutant["id"], "status": status, "seconds": f"{seconds:.0f}",
                    "caught_by": failed}  # fmt: skip
             write_rows(results_path, [row], append=True)
