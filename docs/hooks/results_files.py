@@ -12,7 +12,7 @@ from pathlib import Path
 
 from mkdocs.structure.files import File, InclusionLevel
 
-SUFFIXES = {".png", ".gif", ".txt", ".csv", ".sh", ".py"}
+SUFFIXES = {".png", ".gif", ".txt", ".csv", ".tsv", ".sh", ".py", ".toml"}
 MAX_BYTES = 1_000_000
 
 
