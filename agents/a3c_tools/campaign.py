@@ -218,8 +218,9 @@ def repeat_report(items: list[Item], plan: Path) -> str:
 
 def write_progress(items: list[Item], plan: Path) -> bool:
     table, finished = progress(items)
+    shown = plan.relative_to(ROOT) if plan.is_relative_to(ROOT) else plan
     text = f"# Campaign progress ({plan.name})\n\nWritten by `python -m a3c_tools.campaign "
-    text += f"{plan.as_posix()}` after each sweep.\n\n{table}"
+    text += f"{shown.as_posix()}` after each sweep.\n\n{table}"
     repeats = repeat_report(items, plan)
     if repeats:
         text += f"\nRepeated runs (run 0 of a committed line, again):\n\n{repeats}"
