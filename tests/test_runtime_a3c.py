@@ -385,14 +385,22 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
     """With one worker, a run stopped after a checkpoint (a signal, or its main process killed)
     and resumed ends with the same weights, bit for bit, and the same evaluations (steps and
     scores) as the run that went on: every evaluation and checkpoint is taken at its step, and
-    the checkpoint holds the worker's generator, envs and frames (a3c_runtime.snapshots)."""
+    the checkpoint holds the worker's generator, envs and frames (a3c_runtime.snapshots).
+    The main process is killed with its evaluator stopped (SIGSTOP), the evaluations it was
+    handed piling up in its pipe: continued, the evaluator ends with the rest of the run. A
+    finished run resumed again changes nothing."""
     run_dir = tmp_path / "run"
     process, pids = start(*EXACT, "--run-dir", str(run_dir))
+    killed = "SIGKILL" in fault
+    if killed:
+        os.kill(pids["evaluator"], signal.SIGSTOP)
     while not (run_dir / "checkpoint.pt").exists():
         time.sleep(0.05)
     time.sleep(0.5)  # somewhere after the first checkpoint, between marks
-    os.kill(process.pid, signal.SIGKILL if "SIGKILL" in fault else getattr(signal, fault))
+    os.kill(process.pid, signal.SIGKILL if killed else getattr(signal, fault))
     process.communicate(timeout=30)
+    if killed:
+        os.kill(pids["evaluator"], signal.SIGCONT)
     assert_all_gone(pids)
     step = torch.load(run_dir / "checkpoint.pt", weights_only=True)["global_step"]
     assert 0 < step < 6000, step
@@ -409,6 +417,13 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
         ours["optimizer"]["square_avg"], theirs["optimizer"]["square_avg"], strict=True
     ):
         assert torch.equal(ours_stat, theirs_stat)
+    if fault == "SIGTERM":  # finished: resumed again, it says so and changes nothing
+        files = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()}
+        again = run("--resume", str(run_dir / "checkpoint.pt"))
+        assert again.returncode == 0 and again.stderr == "", again.stderr
+        assert again.stdout.startswith("run run is finished: step 6,000"), again.stdout
+        assert len(again.stdout.strip().splitlines()) == 1, again.stdout
+        assert {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()} == files
 
 
 def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
@@ -422,11 +437,15 @@ def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
     process, pids = start(*flags)
     wait_for_progress(process)
     os.kill(pids["evaluator"], signal.SIGSTOP)
-    time.sleep(4)  # several marks pass meanwhile (the note comes past LATE = 2 waiting)
+    seen = []  # held until the note comes (past LATE = 2 waiting), however slow the workers
+    for line in process.stdout:
+        seen.append(line)
+        if re.match(r"note: the evaluator is \d+ evaluations behind the training", line):
+            break
     os.kill(pids["evaluator"], signal.SIGCONT)
     stdout, stderr = process.communicate(timeout=120)
     assert process.returncode == 0, stderr
-    assert re.search(r"note: the evaluator is \d+ evaluations behind the training", stdout)
+    assert seen and seen[-1].startswith("note: the evaluator is"), "".join(seen) + stdout
     steps = [int(row["global_step"]) for row in read_evaluations(run_dir)]
     marks = list(range(0, 24000, 1000))
     assert len(steps) == len(marks) + 1 and steps == sorted(steps), steps

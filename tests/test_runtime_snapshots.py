@@ -25,7 +25,8 @@ def events(shared) -> list[tuple]:
     found = []
     while True:
         try:
-            found.append(pickle.loads(shared.marks.events.get(timeout=0.5)))
+            _number, event = pickle.loads(shared.marks.events.get(timeout=0.5))
+            found.append(event)
         except queue.Empty:
             return found
 
@@ -142,3 +143,22 @@ def test_an_env_state_of_another_shape_is_refused_and_changes_nothing():
     after = three.get_state()
     assert np.array_equal(before["stack"], after["stack"])
     assert before["env"]["rngs"] == after["env"]["rngs"]
+
+
+def test_the_main_process_receives_the_marks_events_in_the_order_they_were_sent():
+    """Each process's queue writes through its own thread, so a later worker's event can
+    arrive first: it waits for the earlier one; once the workers have ended, a gap (an event
+    lost with its worker) is passed over."""
+    module = load_script("a3c_ff")
+    marks = shared_for(module, tiny_args(module)).marks
+    for number, step in ((1, 2000), (3, 4000), (0, 1000)):
+        marks.events.put(pickle.dumps((number, (EVALUATE, step))))
+    marks.events.put(pickle.dumps((None, (FINAL, 1, []))))  # not numbered: at once
+    received = []
+    while len(received) < 3:  # (the queue's thread hands them over when it runs)
+        event = marks.receive()
+        if event is not None:
+            received.append(event[:2])
+    assert received == [(EVALUATE, 1000), (EVALUATE, 2000), (FINAL, 1)]
+    assert marks.receive() is None  # 4000 waits for 3000, which never comes
+    assert marks.receive(every=True)[1] == 4000 and marks.receive(every=True) is None

@@ -120,7 +120,12 @@ class StepMarks:
     def __init__(self, ctx: Any):
         self.marks = torch.full((2,), NEVER, dtype=torch.int64).share_memory_()
         self.lock = ctx.Lock()  # one worker at a time takes a snapshot and moves the mark
-        self.events = ctx.Queue()  # to the main process: (kind, step, ...)
+        self.events = ctx.Queue()  # to the main process: (number, (kind, step, ...))
+        # the marks' events are numbered as they are sent (under the lock): each process's queue
+        # writes through its own thread, so they may arrive out of order; receive() restores it
+        self.sent = torch.zeros(1, dtype=torch.int64).share_memory_()
+        self.held: dict[int, tuple] = {}  # main process: events that came before an earlier one
+        self.next_number = 0
         self.eval_interval = self.checkpoint_interval = self.total = NEVER
         self.exact = False  # one worker: checkpoints carry its state
         self.resumed_states: dict[int, list[Any]] = {}
@@ -157,19 +162,36 @@ class StepMarks:
         if orphaned:
             self.events.cancel_join_thread()
         elif int(self.marks.min()) < NEVER:  # in a run (not a worker called by a test alone)
-            self.send(FINAL, worker_id, saved_state(state()))
+            self.send(FINAL, worker_id, saved_state(state()), numbered=False)  # in any order
 
-    def send(self, *event: Any) -> None:
+    def send(self, *event: Any, numbered: bool = True) -> None:
         """An event for the main process, as bytes: tensors by value (torch's own pickling for
-        multiprocessing would share them through a file descriptor of this process)."""
-        self.events.put(pickle.dumps(event))
+        multiprocessing would share them through a file descriptor of this process). A mark's
+        event is numbered: it is sent with the lock held, in step order."""
+        number = None
+        if numbered:
+            number = int(self.sent)
+            self.sent += 1
+        self.events.put(pickle.dumps((number, event)))
 
-    def receive(self) -> tuple | None:
-        """The next event, or None when there is none yet (in the main process)."""
-        try:
-            return pickle.loads(self.events.get_nowait())
-        except queue.Empty:
-            return None
+    def receive(self, every: bool = False) -> tuple | None:
+        """The next event in the order the workers sent them (one that arrives before an earlier
+        one waits for it), or None when there is none yet (in the main process). every=True,
+        once the workers have ended: whatever is held, in order, past any gap (a worker killed
+        while its event was on its way)."""
+        while self.next_number not in self.held:
+            try:
+                number, event = pickle.loads(self.events.get_nowait())
+            except queue.Empty:
+                if not (every and self.held):
+                    return None
+                self.next_number = min(self.held)
+                break
+            if number is None:
+                return event
+            self.held[number] = event
+        self.next_number += 1
+        return self.held.pop(self.next_number - 1)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

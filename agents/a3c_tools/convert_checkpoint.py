@@ -6,8 +6,10 @@ owner's explicit request:
 The agent scripts and the tools load a checkpoint only with `torch.load(weights_only=True)`,
 which builds tensors, numbers, strings, lists, tuples and dicts and runs no code; they refuse
 an older checkpoint (format v1, whose workers' states are pickled, or one without a seal),
-naming this command. This command is the one place that unpickles such a file, so it runs
-whatever the file holds: convert only a checkpoint you trust (your own runs). It writes the same
+naming this command. This command reads the checkpoint the same safe way, and then unpickles
+the workers' states a v1 checkpoint holds (a one-worker Catch run's): the one place in the
+project that unpickles a file, so that part runs whatever it holds; convert only a checkpoint
+you trust (your own runs). It writes the same
 network, optimizer statistics, step, flags and evaluations not taken yet, each worker's state in
 the safe form (a3c_runtime.snapshots.saved_state), sealed; checks that the result loads safely;
 and replaces the file atomically (the old one stays until the new one is whole), or writes
@@ -32,9 +34,8 @@ def converted(checkpoint: dict) -> dict:
 
     workers = {}
     for worker_id, states in (checkpoint.get("workers") or {}).items():
-        parts = tuple(
-            pickle.loads(state) if isinstance(state, bytes) else state for state in states
-        )
+        # the one place that unpickles: v1's worker states, on their owner's request
+        parts = tuple(pickle.loads(state) if isinstance(state, bytes) else None for state in states)
         workers[int(worker_id)] = saved_state(parts)
     return {**checkpoint, "format": CHECKPOINT_FORMAT, "script": checkpoint.get("script", ""),
             "workers": workers,
@@ -69,8 +70,15 @@ def convert(path: str, out: str) -> str:
             pass  # an older format, or unsafe: converted below
         else:
             return f"{path} is in the safe form already: nothing to do"
-    try:  # the owner's explicit request: this runs what the file holds
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+    try:  # the checkpoint itself is data in every format; only v1's worker states are pickles
+        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        lines = str(e).strip().splitlines()
+        detail = next((line.strip() for line in lines if "Unsupported" in line), lines[0])
+        raise UsageError(
+            f"checkpoint {path!r} holds more than any checkpoint of the agent scripts ({detail}): "
+            f"not converted"
+        ) from None
     except Exception as e:
         detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
         raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
