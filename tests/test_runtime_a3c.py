@@ -392,7 +392,8 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
     run_dir = tmp_path / "run"
     process, pids = start(*EXACT, "--run-dir", str(run_dir))
     killed = "SIGKILL" in fault
-    if killed:
+    if killed:  # (once it runs: every process is set up by then)
+        wait_for_progress(process)
         os.kill(pids["evaluator"], signal.SIGSTOP)
     while not (run_dir / "checkpoint.pt").exists():
         time.sleep(0.05)
