@@ -17,6 +17,8 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
   `future_work_growth`: the analyses of chapter 8's ideas on Catch (results/future_work_catch);
 - `training_scalars`: a run's TensorBoard training scalars by 1M steps;
 - `record_play`: a checkpoint's agent playing one episode, as an animated GIF;
+- `convert_checkpoint`: a checkpoint from before safe loading, that its owner trusts, into the
+  safe form (docs/runs.md);
 - `atari_report`: the Atari lines across seeds and games with rliable (the IQM with stratified
   bootstrap intervals, a performance profile; its lines are data: atari_report.toml).
 
