@@ -86,8 +86,8 @@ class Agent:
       checkpoint keeps of it, each part saved as data by a3c_runtime.snapshots.saved_state: a
       NumPy generator, an array, a tensor or a tuple of them, an env with get_state/set_state;
       any other part is made afresh on resume), starts from `shared.resumed(worker_id, ...)`
-      and ends with `shared.finish_worker(worker_id, worker_state)`, and adds its statistics (`Shared.STATS`)
-      by name to `shared.worker_stats(worker_id)`;
+      and ends with `shared.finish_worker(worker_id, worker_state)`, and adds its statistics
+      (`Shared.STATS`) by name to `shared.worker_stats(worker_id)`;
     - `checkpoint_defaults`: flags newer than some checkpoints, with the value those
       checkpoints' runs had where it is not the flag's default (e.g. SS's --conv-layout: final
       before it existed);
