@@ -31,7 +31,6 @@ started with. It prints a line per trial and the totals; the exit code is 1 if a
 from __future__ import annotations
 
 import argparse
-import io
 import os
 import random
 import re
@@ -42,30 +41,30 @@ import tempfile
 import time
 from pathlib import Path
 
-import torch
-from a3c_runtime.checkpoints import verify_checkpoint
+from a3c_runtime.checkpoints import read_checkpoint
+from a3c_runtime.flags import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "agents" / "a3c_ff.py"
 FAULTS = ("SIGKILL worker", "SIGKILL main", "SIGTERM", "SIGINT", "disk full", "corrupt checkpoint",
           "sweep race")  # fmt: skip
-# the closing line of a run that ended before its last step
+# the closing line of a run that ended before its last step (a3c_runtime.a3c.resume_hint): the
+# checkpoint that survives and how to resume it, or, with none that reads, how to start again
 HINT = (
     r"(checkpoint \S+ \(step [\d,]+\) survives; resume: python \S+ --resume "
-    r"|no checkpoint was written in \S+; start the run again: python )"
+    r"|(no checkpoint was written in \S+|checkpoint \S+ does not verify \(corrupt\)); "
+    r"start the run again: (rm -r -- \S+ && )?python )"
 )
 DISK_BYTES = 64 << 20  # the tmpfs of a disk-full trial: room for the run, until it is filled
 
 
 def checkpoint_state(path: Path) -> dict | None:
-    """The checkpoint's step and flags if it verifies (its CRCs and seal) and loads, else None."""
+    """The checkpoint's step and flags if it reads safely (its CRCs and seal verified, loaded
+    with weights_only=True), else None."""
     try:
-        data = path.read_bytes()
-        if verify_checkpoint(data) is not None:
-            return None
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
+        checkpoint = read_checkpoint(str(path))
         return {"step": int(checkpoint["global_step"]), "args": checkpoint["args"]}
-    except Exception:
+    except (UsageError, KeyError, TypeError, ValueError):
         return None
 
 
@@ -297,7 +296,8 @@ def main(argv: list[str] | None = None) -> int:
     lost = sum(r.get("lost", 0) for r in done)
     orphan_count = sum(len(r.get("orphans", [])) for r in done)
     errors = sum(1 for r in done if "error" in r)
-    every = "yes" if survived == len(done) else "no"
+    reached = sum(1 for r in done if r.get("reached") and r.get("same_flags"))
+    every = "yes" if reached == len(done) else f"no ({len(done) - reached} did not)"
     print(f"\ntrials {len(done)} ({len(results) - len(done)} skipped); faults survived "
           f"{survived}/{len(done)}; checkpoints lost or unloadable {lost}; partial files "
           f"{partial}; orphan processes "

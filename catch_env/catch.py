@@ -459,6 +459,40 @@ class CatchVectorEnv(VectorEnv):
     def get_action_meanings(self) -> list[str]:
         return list(ACTION_MEANINGS)
 
+    def get_state(self) -> dict[str, Any]:
+        """Everything a step depends on that the constructor does not fix, as NumPy arrays and
+        each generator's `bit_generator.state` (plain numbers): a copy, for `set_state`."""
+        if self._drawn is None:
+            raise RuntimeError("Cannot get the state before reset(): call reset() first.")
+        arrays = {name: getattr(self, name).copy() for name in self._STATE_ARRAYS}
+        return {
+            **arrays,
+            "drawn": [drawn.copy() for drawn in self._drawn],
+            "rngs": [rng.bit_generator.state for rng in self._rngs],
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Go on from `get_state()`'s copy, taken from an env made with the same arguments; a
+        state of another shape is a ValueError and leaves this env as it was."""
+        arrays = {name: np.asarray(state[name]) for name in self._STATE_ARRAYS}
+        drawn = [np.asarray(d) for d in state["drawn"]]
+        for name, array in arrays.items():
+            own = getattr(self, name)
+            if array.shape != own.shape:
+                raise ValueError(f"state {name!r} has shape {array.shape}, not {own.shape}")
+        if len(state["rngs"]) != self.num_envs or len(drawn) != 2:
+            raise ValueError(f"state is not that of {self.num_envs} envs")
+        rngs = [np.random.Generator(np.random.PCG64()) for _ in range(self.num_envs)]
+        for rng, rng_state in zip(rngs, state["rngs"], strict=True):
+            rng.bit_generator.state = rng_state
+        for name, array in arrays.items():
+            setattr(self, name, array.astype(getattr(self, name).dtype, copy=True))
+        self._drawn = tuple(d.astype(np.int64, copy=True) for d in drawn)
+        self._rngs = rngs
+
+    _STATE_ARRAYS = ("_obs", "ball_row", "ball_col", "ball_vx", "paddle", "_needs_reset",
+                     "_starts", "_starts_used")  # fmt: skip
+
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:

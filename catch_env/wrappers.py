@@ -184,6 +184,28 @@ class FrameStackVectorEnv(VectorWrapper):
         self._returns = np.zeros(num_envs, dtype=np.float64)
         self._lengths = np.zeros(num_envs, dtype=np.int64)
 
+    def get_state(self) -> dict[str, Any]:
+        """The stacks, the episodes' running sums and the wrapped env's `get_state()`, as NumPy
+        arrays and plain numbers: a copy, for `set_state`."""
+        return {
+            "stack": self._stack.copy(),
+            "returns": self._returns.copy(),
+            "lengths": self._lengths.copy(),
+            "env": self.env.get_state(),
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Go on from `get_state()`'s copy, taken from an env made with the same arguments; a
+        state of another shape is a ValueError."""
+        parts = {"_stack": state["stack"], "_returns": state["returns"],
+                 "_lengths": state["lengths"]}  # fmt: skip
+        for name, value in parts.items():
+            if np.shape(value) != getattr(self, name).shape:
+                raise ValueError(f"state {name[1:]!r} has shape {np.shape(value)}")
+        self.env.set_state(state["env"])
+        for name, value in parts.items():
+            getattr(self, name)[...] = value
+
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:

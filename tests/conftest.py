@@ -94,6 +94,19 @@ def shared_for(module: ModuleType, args, num_actions: int = 3) -> runtime.Shared
     return runtime.Shared(module.AGENT.build_network(num_actions, args), args, FORK)
 
 
+def read_checkpoint(path: Path | str) -> dict:
+    """A checkpoint's contents, loaded as the project loads them (weights_only=True)."""
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def rewrite_checkpoint(path: Path | str, checkpoint: dict) -> None:
+    """Write checkpoint's contents to path as save_checkpoint writes them (sealed): a checkpoint
+    changed on purpose, as an older script or another tool would have written it."""
+    buffer = io.BytesIO()
+    torch.save(checkpoint, buffer)
+    Path(path).write_bytes(runtime.checkpoints.seal(buffer.getvalue()))
+
+
 @pytest.fixture
 def one_thread():
     """A worker's torch: one thread (run_process sets it in a real run)."""

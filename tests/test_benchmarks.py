@@ -7,6 +7,7 @@ import re
 import sys
 from pathlib import Path
 
+import a3c_runtime as runtime
 import pytest
 import torch
 
@@ -157,3 +158,30 @@ def test_fault_injection_resumes_runs_without_losing_a_checkpoint(monkeypatch, c
         "faults survived 2/2; checkpoints lost or unloadable 0; partial files 0; orphan "
         "processes 0" in result.stdout
     )
+
+
+def test_the_fault_injection_knows_every_closing_hint(tmp_path, monkeypatch):
+    """Its pattern matches each line a run that ended early can close with: a checkpoint that
+    survives, none written (the command naming its folder or not), one that does not verify."""
+    from a3c_runtime.a3c import resume_hint
+    from conftest import load_script, shared_for, tiny_args
+
+    pattern = benchmark("fault_injection").HINT
+    module = load_script("a3c_ff")
+    agent = module.AGENT
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    hints = []
+    for argv in (["a3c_ff.py", "--seed", "2"], ["a3c_ff.py", "--run-dir", str(run_dir)]):
+        monkeypatch.setattr(sys, "argv", argv)
+        hints.append(resume_hint(agent, run_dir))  # no checkpoint
+    args = tiny_args(module)
+    runtime.save_checkpoint(run_dir / "checkpoint.pt", shared_for(module, args), args, 1.0,
+                            "a3c_ff.py")  # fmt: skip
+    hints.append(resume_hint(agent, run_dir))  # one that survives
+    data = (run_dir / "checkpoint.pt").read_bytes()
+    (run_dir / "checkpoint.pt").write_bytes(data[:100] + bytes([data[100] ^ 1]) + data[101:])
+    hints.append(resume_hint(agent, run_dir))  # one that does not verify
+    assert "rm -r -- " in hints[1] and "survives" in hints[2] and "not verify" in hints[3]
+    for hint in hints:
+        assert re.match(pattern, hint), hint

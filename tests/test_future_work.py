@@ -413,15 +413,15 @@ def test_a_checkpoint_of_an_old_flag_belongs_to_its_script(
     from dataclasses import asdict
 
     import a3c_runtime
-    from conftest import shared_for, tiny_args
+    from conftest import rewrite_checkpoint, shared_for, tiny_args
 
     module = load_script(owner)
     args = tiny_args(module)
     path = tmp_path / "checkpoint.pt"
     a3c_runtime.save_checkpoint(path, shared_for(module, args), args, 0.0, f"{thesis}.py")
-    checkpoint = torch.load(path, weights_only=False)
+    checkpoint = torch.load(path, weights_only=True)
     checkpoint["args"] = {**asdict(args), flag: value}  # as the old script stored its flags
-    torch.save(checkpoint, path)
+    rewrite_checkpoint(path, checkpoint)
     code, err = main_exit(load_script(thesis), ["--evaluate", str(path)], monkeypatch, capsys)
     assert code == 2 and err.count("\n") == 1
     assert f"use python agents/future_work/{owner}.py" in err
@@ -453,11 +453,11 @@ def test_prototype_growth_end_to_end(tmp_path, monkeypatch, capsys, name):
     assert code == 0
     assert evaluation_steps(tmp_path)[-1] >= 2000
     # the checkpoint holds the last growth step; a resumed run goes on from the next one
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     done = int(checkpoint["model"]["growth_round"])
     assert done == checkpoint["global_step"] // 500 >= 4
     resume = ["--resume", str(tmp_path / "checkpoint.pt"), "--total-timesteps", "3000"]
     code, _ = main_exit(module, resume, monkeypatch, capsys)
     assert code == 0
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert int(checkpoint["model"]["growth_round"]) == 6  # 2,500 and 3,000

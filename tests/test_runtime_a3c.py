@@ -77,7 +77,7 @@ def test_short_run_writes_evaluations_events_and_checkpoint(short_run):
     assert len(rows) >= 3  # step 0, about 1000, 2000 and the final one
     assert all(0.0 <= float(r["mean_return"]) <= 1.0 and r["episodes"] == "5" for r in rows)
     assert list(run_dir.glob("events.out.tfevents.*"))
-    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     assert checkpoint["global_step"] == steps[-1]
     summary = result.stdout.strip().splitlines()[-1]
     assert summary.startswith("done: final eval") and "SPS" in summary, result.stdout
@@ -102,7 +102,7 @@ def test_tensorboard_scalars(short_run):
 
 def test_resume_continues_global_step(short_run, tmp_path):
     run_dir, _ = short_run
-    old = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    old = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     before = old["global_step"]
     copy = tmp_path / "checkpoint.pt"
     copy.write_bytes((run_dir / "checkpoint.pt").read_bytes())
@@ -127,7 +127,7 @@ def test_resume_continues_global_step(short_run, tmp_path):
     rows = read_evaluations(tmp_path)[len(old_rows) :]
     steps = [int(r["global_step"]) for r in rows]
     assert len(steps) == 1 and steps[0] >= 5000, "a resumed run must not start again at step 0"
-    after = torch.load(copy, weights_only=False)
+    after = torch.load(copy, weights_only=True)
     assert after["global_step"] == steps[-1]
     # wall time continues too: the evaluations' wall_time_s count from the first run's start
     assert after["wall_time"] > old["wall_time"]
@@ -156,7 +156,7 @@ def test_signal_writes_checkpoint_and_exits_zero(tmp_path, signum, group):
     stdout, stderr = process.communicate(timeout=30)
     assert process.returncode == 0, stderr
     assert f"stopped by {signal.Signals(signum).name}" in stdout
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
     assert checkpoint["global_step"] > 0
     assert_all_gone(pids)
 
@@ -228,7 +228,7 @@ def test_a_stopped_run_names_its_checkpoint_and_the_resume_command(tmp_path):
     process.send_signal(signal.SIGTERM)
     stdout, _ = process.communicate(timeout=30)
     match = resume_line(stdout)
-    step = torch.load(tmp_path / "checkpoint.pt", weights_only=False)["global_step"]
+    step = torch.load(tmp_path / "checkpoint.pt", weights_only=True)["global_step"]
     assert int(match[2].replace(",", "")) == step
     assert Path(ROOT, match[1]).resolve() == (tmp_path / "checkpoint.pt").resolve()
 
@@ -270,7 +270,7 @@ def test_resume_keeps_the_runs_flags(tmp_path, monkeypatch, capsys):
     code, err = main_exit(a3c, argv, monkeypatch, capsys, keep_out=True)
     assert code == 0, err
     assert "total_timesteps 1,000 -> 2,000" in capsys.readouterr().out
-    args = torch.load(checkpoint, weights_only=False)["args"]
+    args = torch.load(checkpoint, weights_only=True)["args"]
     assert (args["learning_rate"], args["t_max"], args["total_timesteps"]) == (3e-4, 5, 2000)
     code, err = main_exit(
         a3c, ["--resume", checkpoint, "--learning-rate", "0.5"], monkeypatch, capsys
@@ -303,7 +303,7 @@ def test_a_full_disk_ends_the_run_cleanly_keeping_the_last_checkpoint(tmp_path):
             lines[-2] == f"error: could not write {run_dir}/checkpoint.pt: No space left on device"
         )
         match = resume_line(stderr)
-        step = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
+        step = torch.load(run_dir / "checkpoint.pt", weights_only=True)["global_step"]
         assert step >= 1000 and int(match[2].replace(",", "")) == step
         assert not list(run_dir.glob("*.tmp"))
         assert_all_gone(pids)
@@ -385,23 +385,32 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
     """With one worker, a run stopped after a checkpoint (a signal, or its main process killed)
     and resumed ends with the same weights, bit for bit, and the same evaluations (steps and
     scores) as the run that went on: every evaluation and checkpoint is taken at its step, and
-    the checkpoint holds the worker's generator, envs and frames (a3c_runtime.snapshots)."""
+    the checkpoint holds the worker's generator, envs and frames (a3c_runtime.snapshots).
+    The main process is killed with its evaluator stopped (SIGSTOP), the evaluations it was
+    handed piling up in its pipe: continued, the evaluator ends with the rest of the run. A
+    finished run resumed again changes nothing."""
     run_dir = tmp_path / "run"
     process, pids = start(*EXACT, "--run-dir", str(run_dir))
+    killed = "SIGKILL" in fault
+    if killed:  # (once it runs: every process is set up by then)
+        wait_for_progress(process)
+        os.kill(pids["evaluator"], signal.SIGSTOP)
     while not (run_dir / "checkpoint.pt").exists():
         time.sleep(0.05)
     time.sleep(0.5)  # somewhere after the first checkpoint, between marks
-    os.kill(process.pid, signal.SIGKILL if "SIGKILL" in fault else getattr(signal, fault))
+    os.kill(process.pid, signal.SIGKILL if killed else getattr(signal, fault))
     process.communicate(timeout=30)
+    if killed:
+        os.kill(pids["evaluator"], signal.SIGCONT)
     assert_all_gone(pids)
-    step = torch.load(run_dir / "checkpoint.pt", weights_only=False)["global_step"]
+    step = torch.load(run_dir / "checkpoint.pt", weights_only=True)["global_step"]
     assert 0 < step < 6000, step
     resumed = run("--resume", str(run_dir / "checkpoint.pt"))
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming run run at step {step:,}" in resumed.stdout
     assert evaluations_of(run_dir) == evaluations_of(uninterrupted)
-    ours = torch.load(run_dir / "checkpoint.pt", weights_only=False)
-    theirs = torch.load(uninterrupted / "checkpoint.pt", weights_only=False)
+    ours = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    theirs = torch.load(uninterrupted / "checkpoint.pt", weights_only=True)
     assert ours["global_step"] == theirs["global_step"] == 6000
     for key, value in theirs["model"].items():
         assert torch.equal(ours["model"][key], value), key
@@ -409,6 +418,13 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
         ours["optimizer"]["square_avg"], theirs["optimizer"]["square_avg"], strict=True
     ):
         assert torch.equal(ours_stat, theirs_stat)
+    if fault == "SIGTERM":  # finished: resumed again, it says so and changes nothing
+        files = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()}
+        again = run("--resume", str(run_dir / "checkpoint.pt"))
+        assert again.returncode == 0 and again.stderr == "", again.stderr
+        assert again.stdout.startswith("run run is finished: step 6,000"), again.stdout
+        assert len(again.stdout.strip().splitlines()) == 1, again.stdout
+        assert {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()} == files
 
 
 def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
@@ -422,11 +438,15 @@ def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
     process, pids = start(*flags)
     wait_for_progress(process)
     os.kill(pids["evaluator"], signal.SIGSTOP)
-    time.sleep(4)  # several marks pass meanwhile (the note comes past LATE = 2 waiting)
+    seen = []  # held until the note comes (past LATE = 2 waiting), however slow the workers
+    for line in process.stdout:
+        seen.append(line)
+        if re.match(r"note: the evaluator is \d+ evaluations behind the training", line):
+            break
     os.kill(pids["evaluator"], signal.SIGCONT)
     stdout, stderr = process.communicate(timeout=120)
     assert process.returncode == 0, stderr
-    assert re.search(r"note: the evaluator is \d+ evaluations behind the training", stdout)
+    assert seen and seen[-1].startswith("note: the evaluator is"), "".join(seen) + stdout
     steps = [int(row["global_step"]) for row in read_evaluations(run_dir)]
     marks = list(range(0, 24000, 1000))
     assert len(steps) == len(marks) + 1 and steps == sorted(steps), steps

@@ -1,14 +1,24 @@
 """a3c_runtime.checkpoints: a round trip of network, optimizer statistics and step, and every
-bad checkpoint as a one-line UsageError (changed bytes included, before torch reads them); old
-checkpoints still load."""
+bad checkpoint as a one-line UsageError (changed bytes included, before torch reads them; an
+unsealed one); converted checkpoints from before a flag or the script name still load."""
 
+import io
 import zipfile
 from pathlib import Path
 
 import a3c_runtime as runtime
 import pytest
 import torch
-from conftest import FORK, SCRIPTS, load_script, main_exit, shared_for, tiny_args
+from conftest import (
+    FORK,
+    SCRIPTS,
+    load_script,
+    main_exit,
+    read_checkpoint,
+    rewrite_checkpoint,
+    shared_for,
+    tiny_args,
+)
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -62,7 +72,10 @@ def test_checkpoint_round_trip_and_errors(name, tmp_path):
     with pytest.raises(runtime.UsageError, match="corrupt"):
         runtime.load_checkpoint(str(tmp_path / "garbage.pt"), agent)
     torch.save({"weights": 1}, tmp_path / "other.pt")
-    with pytest.raises(runtime.UsageError, match="not a checkpoint written by this script"):
+    with pytest.raises(runtime.UsageError, match="carries no seal"):
+        runtime.load_checkpoint(str(tmp_path / "other.pt"), agent)
+    rewrite_checkpoint(tmp_path / "other.pt", {"weights": 1})
+    with pytest.raises(runtime.UsageError, match="not a checkpoint written by the agent scripts"):
         runtime.load_checkpoint(str(tmp_path / "other.pt"), agent)
     elu = tiny_args(module, activation="elu")
     with pytest.raises(runtime.UsageError, match="--activation"):
@@ -75,7 +88,8 @@ def test_checkpoint_round_trip_and_errors(name, tmp_path):
 
 @pytest.fixture(scope="module")
 def ff_checkpoints(tmp_path_factory) -> tuple[Path, Path]:
-    """An a3c_ff.py checkpoint, and the same without the script name (as written before)."""
+    """An a3c_ff.py checkpoint, and the same without the script name (as written before the
+    name was stored, and converted)."""
     module = load_script("a3c_ff")
     args = tiny_args(module)
     folder = tmp_path_factory.mktemp("ff")
@@ -83,9 +97,9 @@ def ff_checkpoints(tmp_path_factory) -> tuple[Path, Path]:
     for path, script in ((new, "a3c_ff.py"), (old, "")):
         path.parent.mkdir()
         runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script=script)
-    checkpoint = torch.load(old, weights_only=False)
-    del checkpoint["script"]
-    torch.save(checkpoint, old)
+    checkpoint = read_checkpoint(old)
+    checkpoint["script"] = ""
+    rewrite_checkpoint(old, checkpoint)
     return new, old
 
 
@@ -136,9 +150,9 @@ def test_checkpoints_from_before_conv_layout_hold_the_final_network(name, tmp_pa
     args = tiny_args(module, conv_layout="final")
     path = tmp_path / "checkpoint.pt"
     runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="")
-    checkpoint = torch.load(path, weights_only=False)
-    del checkpoint["script"], checkpoint["args"]["conv_layout"]  # as written before the flag
-    torch.save(checkpoint, path)
+    checkpoint = read_checkpoint(path)
+    del checkpoint["args"]["conv_layout"]  # as written before the flag
+    rewrite_checkpoint(path, checkpoint)
     loaded = runtime.load_checkpoint(str(path), module.AGENT)
     runtime.restore(shared_for(module, args), loaded, args, str(path), module.AGENT)
     with pytest.raises(runtime.UsageError, match="--conv-layout final, not ff"):
@@ -214,7 +228,7 @@ MESSAGES = {
     "flipped": "is corrupt: archive/data/",  # ... N fails its CRC check
     "header": "is corrupt: its bytes do not match the SHA-256 it was written with",
     "truncated": "is corrupt: not a whole zip archive",
-    "foreign": "is corrupt or not a torch file",
+    "foreign": "is corrupt: not a torch file",
 }
 
 
@@ -244,15 +258,44 @@ def test_resume_and_evaluate_refuse_a_changed_checkpoint_and_leave_it(
         assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt"]
 
 
-def test_a_sealed_checkpoint_loads_and_an_unsealed_one_is_checked_by_crc(ff_checkpoints):
-    new, old = ff_checkpoints  # old: rewritten by torch.save, as checkpoints were before the seal
-    agent = load_script("a3c_ff").AGENT
+def stripped(data: bytes) -> bytes:
+    """The checkpoint's bytes without its seal: the zip comment's length set to 0."""
+    comment = zipfile.ZipFile(io.BytesIO(data)).comment
+    head = data[: len(data) - len(comment)]
+    return head[:-2] + b"\x00\x00"
+
+
+@pytest.mark.parametrize("mode", ["--resume", "--evaluate"])
+def test_a_checkpoint_without_its_seal_is_refused_and_left(mode, ff_checkpoints, tmp_path,
+                                                          monkeypatch, capsys):  # fmt: skip
+    """Whether its bytes are whole (the seal merely gone) or changed where no CRC looks (the
+    seal stripped, then a header's byte flipped): refused in one line, exit 2, unchanged, with
+    the command that converts a checkpoint its owner trusts."""
+    new, _ = ff_checkpoints
+    data = stripped(new.read_bytes())
+    header = bytearray(data)
+    header[zipfile.ZipFile(new).infolist()[0].header_offset + 10] ^= 0x01
+    module = load_script("a3c_ff")
+    for name, content in (("whole", data), ("changed", bytes(header))):
+        (tmp_path / name).mkdir()
+        path = tmp_path / name / "checkpoint.pt"
+        path.write_bytes(content)
+        assert zipfile.ZipFile(path).testzip() is None  # every CRC holds
+        code, err = main_exit(module, [mode, str(path), "--num-workers", "1"], monkeypatch, capsys)
+        assert code == 2 and err.count("\n") == 1, err
+        assert "carries no seal" in err and "python -m a3c_tools.convert_checkpoint" in err
+        assert path.read_bytes() == content
+        assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt"]
+        assert runtime.checkpoints.checkpoint_step(path) is None
+
+
+def test_a_sealed_checkpoint_loads(ff_checkpoints):
+    new, _ = ff_checkpoints
     assert zipfile.ZipFile(new).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
-    assert zipfile.ZipFile(old).comment == b""
-    for path in (new, old):
-        assert runtime.checkpoints.verify_checkpoint(path.read_bytes()) is None
-        assert runtime.load_checkpoint(str(path), agent)["format"] == "a3c-checkpoint-v1"
-        assert runtime.checkpoints.checkpoint_step(path) == 0
+    assert runtime.checkpoints.verify_checkpoint(new.read_bytes()) is None
+    checkpoint = runtime.load_checkpoint(str(new), load_script("a3c_ff").AGENT)
+    assert checkpoint["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
+    assert runtime.checkpoints.checkpoint_step(new) == 0
 
 
 def test_the_closing_hint_does_not_offer_a_changed_checkpoint(ff_checkpoints, tmp_path):

@@ -116,3 +116,23 @@ def test_evaluate_in_a_window_without_a_display_exits_2_in_one_line(tmp_path, mo
     argv = ["--evaluate", str(path), "--render", "human"]
     code, err = main_exit(module, argv, monkeypatch, capsys)
     assert code == 2 and err.startswith("error: no display: ") and err.count("\n") == 1, err
+
+
+def test_evaluate_refuses_a_flag_the_checkpoint_contradicts(tmp_path, monkeypatch, capsys):
+    """--evaluate plays the checkpoint's env and network: a flag given with another value than
+    the checkpoint's is refused in one line, naming the flags that apply; the same value, or
+    one of those flags, plays."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="a3c_ff.py")
+    for flags, shown in ((["--env", "BreakoutNoFrameskip-v4"], "--env BreakoutNoFrameskip-v4"),
+                         (["--learning-rate", "0.5"], "--learning-rate 0.5"),
+                         (["--activation", "elu"], "--activation elu")):  # fmt: skip
+        code, err = main_exit(module, ["--evaluate", str(path), *flags], monkeypatch, capsys)
+        assert code == 2 and err.count("\n") == 1, err
+        assert err.startswith(f"error: {shown} differs from the checkpoint's "), err
+        assert "only --seed, --eval-episodes, --eval-greedy, --render, --capture-video" in err
+    argv = ["--evaluate", str(path), "--env", "Catch-v0", "--seed", "4", "--eval-episodes", "1"]
+    code, err = main_exit(module, argv, monkeypatch, capsys)
+    assert code == 0 and err == "", err

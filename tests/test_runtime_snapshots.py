@@ -1,13 +1,21 @@
 """a3c_runtime.snapshots: a worker whose update reaches an evaluation or checkpoint mark copies
 theta there (and, with one worker, its own state), and a resumed worker gets its state back."""
 
+import io
 import pickle
 import queue
 
 import numpy as np
 import pytest
 import torch
-from a3c_runtime.snapshots import CHECKPOINT, EVALUATE, FINAL, NEVER, pickled, unpickled
+from a3c_runtime.snapshots import (
+    CHECKPOINT,
+    EVALUATE,
+    FINAL,
+    NEVER,
+    restored_state,
+    saved_state,
+)
 from conftest import load_script, shared_for, tiny_args
 
 import catch_env  # noqa: F401  (registers Catch-v0)
@@ -17,7 +25,8 @@ def events(shared) -> list[tuple]:
     found = []
     while True:
         try:
-            found.append(pickle.loads(shared.marks.events.get(timeout=0.5)))
+            _number, event = pickle.loads(shared.marks.events.get(timeout=0.5))
+            found.append(event)
         except queue.Empty:
             return found
 
@@ -40,7 +49,7 @@ def test_the_update_that_reaches_a_mark_copies_theta_there(run_shared):
     for update in range(8):  # 60 ... 480
         with torch.no_grad():
             shared.params[0].fill_(update)  # theta after this update
-        shared.count_steps(0, 60, lambda: (rng, "envs"))
+        shared.count_steps(0, 60, lambda: (rng, np.arange(3)))
     found = events(shared)
     kinds = [(event[0], event[1]) for event in found]
     assert kinds == [(EVALUATE, 120), (CHECKPOINT, 180), (EVALUATE, 240), (EVALUATE, 300),
@@ -49,9 +58,10 @@ def test_the_update_that_reaches_a_mark_copies_theta_there(run_shared):
     assert torch.all(first_weight == 1)  # theta as the update reaching 120 left it
     step, model, optimizer, workers = found[1][1:]
     assert next(iter(model.values())).eq(2).all() and "square_avg" in optimizer
-    saved = workers[0]  # one worker: its state, pickled
-    assert pickle.loads(saved[1]) == "envs"
-    assert pickle.loads(saved[0]).random() == np.random.default_rng(0).random()
+    saved = workers[0]  # one worker: its state, in the safe form
+    assert saved[1].tolist() == [0, 1, 2]
+    (restored,) = restored_state(saved[:1], (np.random.default_rng(5),))
+    assert restored.random() == np.random.default_rng(0).random()
 
 
 def test_no_snapshot_outside_a_run_and_none_of_a_worker_of_several():
@@ -70,33 +80,85 @@ def test_no_snapshot_outside_a_run_and_none_of_a_worker_of_several():
 
 
 def test_a_finished_worker_sends_its_state_unless_orphaned(run_shared):
-    run_shared.finish_worker(0, lambda: ("envs", 3))
+    run_shared.finish_worker(0, lambda: (np.zeros(2), np.full(1, 3)))
     (event,) = events(run_shared)
-    assert event[0] == FINAL and event[1] == 0 and pickle.loads(event[2][1]) == 3
+    assert event[0] == FINAL and event[1] == 0 and event[2][1].tolist() == [3]
     run_shared.marks.finished(0, lambda: ("envs",), orphaned=True)
     assert events(run_shared) == []
 
 
-class Unpicklable:
-    closed = False
+class NoState:
+    """A part of a worker's state with no safe form (as ale-py's C++ vector env)."""
 
-    def __reduce__(self):
-        raise TypeError("cannot pickle")
 
-    def close(self):
-        self.closed = True
+def safely_loaded(value):
+    buffer = io.BytesIO()
+    torch.save(value, buffer)
+    return torch.load(io.BytesIO(buffer.getvalue()), weights_only=True)
 
 
 def test_a_resumed_worker_gets_what_was_saved_and_keeps_the_rest():
-    saved = pickled((np.random.default_rng(3), Unpicklable(), [1, 2]))
-    assert saved[1] is None  # ale-py's vector env: not saved, made afresh on resume
-    fresh_rng, fresh_envs, fresh_list = np.random.default_rng(9), Unpicklable(), [0]
-    rng, envs, values = unpickled(saved, (fresh_rng, fresh_envs, fresh_list))
+    """The state goes through torch.load(weights_only=True), as a checkpoint's does: the
+    generator, the frames, an LSTM's state and Catch's envs come back, the envs playing on as
+    the saved ones do; a part with no safe form is the fresh one."""
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("Catch-v0", 3)
+    envs.reset(seed=4)
+    for t in range(7):
+        envs.step(np.array([t % 3, 1, 2]))
+    frames, lstm = np.arange(6, dtype=np.uint8), (torch.ones(2), torch.zeros(3))
+    saved = safely_loaded(saved_state((np.random.default_rng(3), envs, frames, lstm, NoState())))
+    assert saved[4] is None  # not saved, made afresh on resume
+    fresh_envs, no_state = make_vector_env("Catch-v0", 3), NoState()
+    fresh_envs.reset(seed=99)
+    fresh = (np.random.default_rng(9), fresh_envs, np.zeros(6, dtype=np.uint8), None, no_state)
+    rng, restored_envs, obs, state, kept = restored_state(saved, fresh)
     assert rng.random() == np.random.default_rng(3).random()
-    assert envs is fresh_envs and not envs.closed and values == [1, 2]
+    assert obs.dtype == np.uint8 and obs.tolist() == frames.tolist()
+    assert isinstance(state, tuple) and state[0].tolist() == [1, 1] and kept is no_state
+    assert restored_envs is fresh_envs
+    for t in range(40):  # the same games on: frames, rewards, ends, and new games' starts
+        actions = np.array([t % 3, (t + 1) % 3, 0])
+        ours, theirs = restored_envs.step(actions), envs.step(actions)
+        for a, b in zip(ours[:4], theirs[:4], strict=True):
+            assert np.array_equal(a, b)
     module = load_script("a3c_ff")
     args = tiny_args(module)
     shared = shared_for(module, args)
-    shared.marks.start(0, args, {"0": pickled(("saved",))})
-    assert shared.resumed(0, "fresh") == ("saved",)
+    shared.marks.start(0, args, {"0": saved_state((np.arange(2),))})
+    assert shared.resumed(0, np.zeros(2))[0].tolist() == [0, 1]
     assert shared.resumed(1, "fresh") == ("fresh",)  # a worker the checkpoint did not keep
+
+
+def test_an_env_state_of_another_shape_is_refused_and_changes_nothing():
+    from catch_env.wrappers import make_vector_env
+
+    two, three = make_vector_env("Catch-v0", 2), make_vector_env("Catch-v0", 3)
+    two.reset(seed=1)
+    three.reset(seed=2)
+    before = three.get_state()
+    with pytest.raises(ValueError, match="shape"):
+        three.set_state(two.get_state())
+    after = three.get_state()
+    assert np.array_equal(before["stack"], after["stack"])
+    assert before["env"]["rngs"] == after["env"]["rngs"]
+
+
+def test_the_main_process_receives_the_marks_events_in_the_order_they_were_sent():
+    """Each process's queue writes through its own thread, so a later worker's event can
+    arrive first: it waits for the earlier one; once the workers have ended, a gap (an event
+    lost with its worker) is passed over."""
+    module = load_script("a3c_ff")
+    marks = shared_for(module, tiny_args(module)).marks
+    for number, step in ((1, 2000), (3, 4000), (0, 1000)):
+        marks.events.put(pickle.dumps((number, (EVALUATE, step))))
+    marks.events.put(pickle.dumps((None, (FINAL, 1, []))))  # not numbered: at once
+    received = []
+    while len(received) < 3:  # (the queue's thread hands them over when it runs)
+        event = marks.receive()
+        if event is not None:
+            received.append(event[:2])
+    assert received == [(EVALUATE, 1000), (EVALUATE, 2000), (FINAL, 1)]
+    assert marks.receive() is None  # 4000 waits for 3000, which never comes
+    assert marks.receive(every=True)[1] == 4000 and marks.receive(every=True) is None

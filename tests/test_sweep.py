@@ -816,12 +816,12 @@ def test_an_interrupted_run_resumes_with_its_own_flags(tmp_path):
     checkpoint = run_dir / "checkpoint.pt"
     first = sweep.execute_run(command, str(run_dir), lambda: int(checkpoint.exists()))
     assert first["interrupted"] and first["returncode"] == 0, first
-    step = torch.load(checkpoint, weights_only=False)["global_step"]
+    step = torch.load(checkpoint, weights_only=True)["global_step"]
     assert step < 4000
     second = sweep.execute_run(command, str(run_dir))
     assert second["returncode"] == 0 and not second["interrupted"], second
     assert "resuming run run-0000 at step" in second["stdout_tail"]
-    resumed = torch.load(checkpoint, weights_only=False)
+    resumed = torch.load(checkpoint, weights_only=True)
     assert resumed["global_step"] >= 4000
     assert (resumed["args"]["learning_rate"], resumed["args"]["seed"]) == (0.0005, 5)
 

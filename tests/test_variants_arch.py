@@ -706,7 +706,7 @@ def test_lws_fixed_group_wise_centroids_resume_only_with_their_seed(tmp_path, mo
     """Fixed centroids come from --seed: resuming with another seed would silently change them."""
     flags = ["--no-lws-trainable", "--lws-centroids", "group"]
     checkpoint = saved_checkpoint("a3c_lws", tmp_path, *flags)
-    saved = torch.load(checkpoint, weights_only=False)
+    saved = torch.load(checkpoint, weights_only=True)
     assert saved["model"]["torso.0.centroids"].shape == (3, 1, 2)  # buffers, saved
     argv = [*flags, "--seed", "2", "--resume", str(checkpoint), "--total-timesteps", "1000"]
     code, err = main_exit(load_script("a3c_lws"), argv, monkeypatch, capsys)

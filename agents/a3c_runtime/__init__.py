@@ -83,9 +83,11 @@ class Agent:
       `shared.keep_running()` and the global step is below T_max, reads and updates
       `shared.params` with `shared.optimizer`, counts its env steps after each update with
       `shared.count_steps(worker_id, steps, worker_state)` (worker_state() gives what a
-      checkpoint keeps of it), starts from `shared.resumed(worker_id, ...)` and ends with
-      `shared.finish_worker(worker_id, worker_state)`, and adds its statistics (`Shared.STATS`)
-      by name to `shared.worker_stats(worker_id)`;
+      checkpoint keeps of it, each part saved as data by a3c_runtime.snapshots.saved_state: a
+      NumPy generator, an array, a tensor or a tuple of them, an env with get_state/set_state;
+      any other part is made afresh on resume), starts from `shared.resumed(worker_id, ...)`
+      and ends with `shared.finish_worker(worker_id, worker_state)`, and adds its statistics
+      (`Shared.STATS`) by name to `shared.worker_stats(worker_id)`;
     - `checkpoint_defaults`: flags newer than some checkpoints, with the value those
       checkpoints' runs had where it is not the flag's default (e.g. SS's --conv-layout: final
       before it existed);

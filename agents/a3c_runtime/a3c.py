@@ -35,7 +35,7 @@ from .flags import UsageError, probe_env, resolve_defaults
 from .hogwild import Shared, annealed_lr, seed_everything
 from .resume import given_flags, resumed_args
 from .run_folder import RunFolder, run_folder_path
-from .run_log import RunLog, format_seconds, logged_steps
+from .run_log import RunLog, format_seconds, last_evaluation, logged_steps
 from .snapshots import CHECKPOINT, EVALUATE, copy_of
 from .supervision import FORK, RunFailed, Supervisor
 
@@ -58,6 +58,9 @@ def train(
         folder = RunFolder(run_folder_path(args, resuming=True))
     if args.resume and checkpoint is None:
         checkpoint = load_checkpoint(args.resume, agent, "--resume")
+    if checkpoint is not None and folder is not None and is_finished(checkpoint, args, folder.path):
+        folder.close()  # (idempotent: run() closes the folder it passed too)
+        return finished_summary(checkpoint, args, folder.path)
     seed_everything(args.seed)
     num_actions = probe_env(agent.make_env, args.env)
     # the network is built before the run folder: its constructor rejects bad flags
@@ -138,9 +141,10 @@ def watch(
     final_states: dict[int, list] = {}  # each worker's state as its loop ended
     behind = [False]  # the evaluator is more than LATE evaluations behind (announced once)
 
-    def drain() -> None:
-        """The workers' snapshots and the evaluator's results so far, in order."""
-        while (event := shared.marks.receive()) is not None:
+    def drain(every: bool = False) -> None:
+        """The workers' snapshots and the evaluator's results so far, in order (every: the
+        workers have ended, see StepMarks.receive)."""
+        while (event := shared.marks.receive(every)) is not None:
             if event[0] == EVALUATE:
                 pending.append(event[1:])
                 requests.put(pickle.dumps(event[1:]))
@@ -196,7 +200,7 @@ def watch(
         requests.put(None)
         supervisor.stop(finished, drain)
     end_time, global_step = time.time(), shared.global_step()
-    drain()
+    drain(every=True)
     shared.marks.close()
     if supervisor.failures:
         raise RunFailed("\n".join(supervisor.failures))
@@ -216,6 +220,31 @@ def watch(
             env.close()
     start_time, start_of_sps = steady_start or (log.start, start_step)
     return outcome, (global_step - start_of_sps) / max(end_time - start_time, 1e-9)
+
+
+def is_finished(checkpoint: dict, args: Any, run_dir: Path) -> bool:
+    """Whether the run a checkpoint continues into run_dir has nothing left to do: its step at
+    T_max or past it, and its final evaluation in run_dir's evaluations.csv."""
+    step = int(checkpoint["global_step"])
+    return step >= args.total_timesteps and step in logged_steps(run_dir / "evaluations.csv", step)
+
+
+def finished_summary(checkpoint: dict, args: Any, run_dir: Path) -> dict:
+    """A finished run resumed: nothing is started or written; one line says so."""
+    step, last = int(checkpoint["global_step"]), last_evaluation(run_dir / "evaluations.csv")
+    print(
+        f"run {run_dir.name} is finished: step {step:,} of --total-timesteps "
+        f"{args.total_timesteps:,}, final eval {last['mean_return']:.3f} at step "
+        f"{last['global_step']:,}; nothing to do (a larger --total-timesteps continues it) | "
+        f"{run_dir}",
+        flush=True,
+    )
+    return {
+        "outcome": "finished already", "run_dir": str(run_dir), "global_step": step,
+        "final_eval": last["mean_return"], "final_eval_step": last["global_step"],
+        "wall_time_s": checkpoint["wall_time"], "part_time_s": 0.0, "eval_time_s": 0.0,
+        "sps": 0.0,
+    }  # fmt: skip
 
 
 def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Path) -> dict:
@@ -283,7 +312,7 @@ def command_line(agent: Any) -> int:
 
     try:
         if args.evaluate:
-            evaluate(agent, args)
+            evaluate(agent, args, given_flags(sys.argv[1:], agent.Args))
             return 0
         if args.resume:  # the same experiment, its folder locked before the checkpoint is read
             check_checkpoint_path(args.resume, "--resume")  # before the folder is touched
@@ -314,7 +343,7 @@ def command_line(agent: Any) -> int:
             print(resume_hint(agent, e.run_dir), file=sys.stderr, flush=True)
             return 1
         raise
-    if summary["outcome"] != "done":
+    if summary["outcome"] not in ("done", "finished already"):
         print(resume_hint(agent, Path(summary["run_dir"])), flush=True)
     return 0
 

@@ -1,15 +1,21 @@
 """Checkpoints: written atomically (a temp file, flushed to disk, then a rename) so that a crash
 or a full disk never leaves a corrupt one or a partial file, and sealed with a SHA-256 of their
-bytes; verified and validated on load (every zip member's CRC, and the seal), so that a missing,
-changed, truncated or foreign checkpoint is a one-line UsageError before anything uses it;
-restored into the shared network and optimizer for --resume."""
+bytes; read safely (every zip member's CRC and the seal checked, then `torch.load` with
+`weights_only=True`, which builds tensors, numbers, strings, lists, tuples and dicts and runs
+no code), so that a missing, changed, truncated, unsealed, foreign or code-carrying checkpoint
+is a one-line UsageError before anything uses it; restored into the shared network and
+optimizer for --resume.
 
-from __future__ import annotations
+The seal guards against accidents (a flipped bit, a truncated copy, a stripped comment), not
+against someone: anyone can recompute it. What makes a shared checkpoint harmless is that
+loading one never executes it."""
 
 import contextlib
 import hashlib
 import io
 import os
+import pickle
+import shlex
 import struct
 import zipfile
 from dataclasses import asdict
@@ -22,7 +28,10 @@ import torch.nn as nn
 from .flags import UsageError
 from .hogwild import Shared
 
-CHECKPOINT_FORMAT = "a3c-checkpoint-v1"  # "script" was added compatibly: older ones lack it
+CHECKPOINT_FORMAT = "a3c-checkpoint-v2"  # every part of the safe form; "script" always set
+# v1 held the workers' states pickled, so a v1 checkpoint is never loaded: its owner converts it
+# (python -m a3c_tools.convert_checkpoint, which unpickles it on that explicit request)
+UNSAFE_FORMATS = ("a3c-checkpoint-v1",)
 # Chapter 8's ideas were flags of the thesis scripts before each became a script of its own in
 # agents/future_work/: a checkpoint an older thesis script wrote with one of them set belongs to
 # that script, which plays and resumes it; the thesis script refuses it, naming the script.
@@ -56,8 +65,9 @@ def save_checkpoint(
     """Write atomically (temp file + rename) so that a crash never leaves a corrupt checkpoint.
     Of theta, the optimizer statistics and the global step as they are in `shared`, or as a
     worker copied them at a checkpoint mark (`snapshot`: model, optimizer, global_step); either
-    may add what an exact resume needs (a3c_runtime.snapshots): `workers`, each worker's pickled
-    state, and `pending_evaluations`, the (step, theta) evaluations not taken yet."""
+    may add what an exact resume needs (a3c_runtime.snapshots): `workers`, each worker's state
+    in the safe form (snapshots.saved_state), and `pending_evaluations`, the (step, theta)
+    evaluations not taken yet."""
     snapshot = snapshot or {}
     checkpoint = {
         "format": CHECKPOINT_FORMAT,
@@ -79,32 +89,85 @@ def save_checkpoint(
 
 
 def seal(archive: bytes) -> bytes:
-    """The zip archive torch.save wrote, with the SHA-256 of its bytes as the zip's comment (as
-    it is if torch ever writes another layout: its CRCs are still checked)."""
+    """The zip archive torch.save wrote, with the SHA-256 of its bytes as the zip's comment.
+    ValueError if the archive does not end in a comment-less end-of-central-directory record
+    (a layout this seal does not know: nothing unsealed is ever written)."""
     if archive[-22:-18] != END_OF_ARCHIVE or archive[-2:] != b"\x00\x00":
-        return archive
+        raise ValueError("the archive does not end in a comment-less end-of-central-directory")
     length = len(SEAL_PREFIX) + hashlib.sha256().digest_size * 2
     head = archive[:-2] + struct.pack("<H", length)  # the comment's length is sealed too
     return head + SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode()
 
 
 def verify_checkpoint(data: bytes) -> str | None:
-    """What is wrong with a checkpoint's bytes, or None if nothing: a member whose CRC fails,
-    an archive that is no zip (truncated, another format), a seal that does not match its
-    bytes. Checkpoints from before the seal (no zip comment) are checked by CRC alone."""
+    """What is wrong with a checkpoint's bytes, or None if nothing: an archive that is no zip
+    (truncated, another format), a member whose CRC fails, a zip that torch did not write, no
+    seal (NO_SEAL), a seal that does not match its bytes."""
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as archive:
             bad_member = archive.testzip()  # reads every member, checking its CRC
-            comment = archive.comment
+            comment, names = archive.comment, archive.namelist()
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, ValueError) as e:
         return f"not a whole zip archive ({e})"
     if bad_member is not None:
         return f"{bad_member} fails its CRC check"
-    if comment:
-        head = data[: len(data) - len(comment)]
-        if comment != SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode():
-            return "its bytes do not match the SHA-256 it was written with"
+    if not any(name.endswith("/data.pkl") for name in names):
+        return "not a torch file (a zip archive without data.pkl)"
+    if not comment:
+        return NO_SEAL
+    head = data[: len(data) - len(comment)]
+    if comment != SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode():
+        return "its bytes do not match the SHA-256 it was written with"
     return None
+
+
+NO_SEAL = "it carries no seal"
+
+
+def convert_command(path: str) -> str:
+    """The command that converts a checkpoint its owner trusts into the safe, sealed form."""
+    return shlex.join(["python", "-m", "a3c_tools.convert_checkpoint", path])
+
+
+def read_checkpoint(path: str, flag: str | None = None) -> dict:
+    """The checkpoint at path, its bytes verified and then loaded safely (weights_only=True:
+    nothing in it runs), or a one-line UsageError saying what is wrong with it. Checks the
+    format, not whose it is (load_checkpoint does)."""
+    check_checkpoint_path(path, flag)
+    try:
+        data = Path(path).read_bytes()  # read once: what is verified is what is loaded
+    except OSError as e:
+        raise UsageError(f"cannot read checkpoint {path!r}: {e.strerror or e}") from e
+    problem = verify_checkpoint(data)
+    if problem == NO_SEAL:
+        raise UsageError(
+            f"checkpoint {path!r} carries no seal (written before checkpoints were sealed and "
+            f"safe to load, or changed since), so it is not loaded; if you trust it, convert "
+            f"it: {convert_command(path)}"
+        )
+    if problem is not None:
+        raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
+    try:
+        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:  # an object that is not data: never built, never run
+        lines = str(e).strip().splitlines()
+        detail = next((line.strip() for line in lines if "Unsupported" in line), None)
+        raise UsageError(
+            f"checkpoint {path!r} cannot be loaded safely: it holds more than data "
+            f"({detail or (lines or [type(e).__name__])[0]}); if it is yours, from before "
+            f"checkpoints were safe to load, convert it: {convert_command(path)}"
+        ) from None
+    except Exception as e:
+        detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
+    if isinstance(checkpoint, dict) and checkpoint.get("format") in UNSAFE_FORMATS:
+        raise UsageError(
+            f"checkpoint {path!r} was written before checkpoints were safe to load, and is not "
+            f"loaded; if you trust it, convert it: {convert_command(path)}"
+        )
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        raise UsageError(f"{path!r} is not a checkpoint written by the agent scripts")
+    return checkpoint
 
 
 class WriteFailed(Exception):
@@ -132,14 +195,10 @@ def write_atomically(path: Path, data: bytes | memoryview) -> None:
 
 
 def checkpoint_step(path: Path) -> int | None:
-    """The global step of a checkpoint that verifies and loads, else None."""
+    """The global step of a checkpoint that reads safely (read_checkpoint), else None."""
     try:
-        data = Path(path).read_bytes()
-        if verify_checkpoint(data) is not None:
-            return None
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
-        return int(checkpoint["global_step"])
-    except Exception:
+        return int(read_checkpoint(str(path))["global_step"])
+    except (UsageError, KeyError, TypeError, ValueError):
         return None
 
 
@@ -157,24 +216,10 @@ def check_checkpoint_path(path: str, flag: str | None = None) -> None:
 
 
 def load_checkpoint(path: str, agent: Any, flag: str | None = None) -> dict:
-    """Load a checkpoint of this script, or raise UsageError saying what is wrong with it. Its
-    bytes are verified before torch reads them: a changed or truncated file is refused."""
-    check_checkpoint_path(path, flag)
-    try:
-        data = Path(path).read_bytes()  # read once: what is verified is what is loaded
-    except OSError as e:
-        raise UsageError(f"cannot read checkpoint {path!r}: {e.strerror or e}") from e
-    problem = verify_checkpoint(data)
-    if problem is not None:
-        raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
-    try:
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
-    except Exception as e:
-        detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
-        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
-    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
-        raise UsageError(f"{path!r} is not a checkpoint written by this script")
-    script = checkpoint.get("script")  # absent before it was stored
+    """Load a checkpoint of this script (read_checkpoint), or raise UsageError saying what is
+    wrong with it."""
+    checkpoint = read_checkpoint(path, flag)
+    script = checkpoint.get("script")
     moved = moved_script(checkpoint)
     if moved is not None:
         owner, flag, value = moved

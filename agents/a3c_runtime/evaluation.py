@@ -17,8 +17,9 @@ import torch
 import torch.nn as nn
 
 from .checkpoints import load_checkpoint, load_network
-from .flags import EVAL_EPISODES, UsageError, probe_env
+from .flags import EVAL_EPISODES, UsageError, probe_env, resolve_precision
 from .hogwild import Shared, process_seed, seed_everything
+from .resume import flag, show
 
 HUMAN_EVAL_EPISODES = 5  # --evaluate --render human: a handful to watch, not the protocol's 50
 
@@ -153,8 +154,29 @@ def evaluation_episodes(args: Any) -> int:
     return HUMAN_EVAL_EPISODES if args.render == "human" else EVAL_EPISODES
 
 
-def evaluate(agent: Any, args: Any) -> np.ndarray:
-    """--evaluate: play episodes with a checkpoint's network, print each score and the mean."""
+# what --evaluate takes from the command line; every other flag is the checkpoint's
+EVALUATE_FLAGS = ("seed", "eval_episodes", "eval_greedy", "render", "capture_video", "evaluate")
+
+
+def check_evaluate_flags(trained: Any, args: Any, given: set[str]) -> None:
+    """UsageError for a flag given with --evaluate (`given`: the Args fields named on the
+    command line) outside EVALUATE_FLAGS whose value differs from the checkpoint's."""
+    for name in sorted(given - set(EVALUATE_FLAGS)):
+        new, old = getattr(args, name), getattr(trained, name)
+        if name == "precision":  # --precision auto: what it resolves to for the run
+            new = resolve_precision(new, getattr(trained, "envs_per_worker", 1))
+        if new != old:
+            valid = ", ".join(flag(n) for n in EVALUATE_FLAGS[:-1])
+            raise UsageError(
+                f"{flag(name)} {show(new)} differs from the checkpoint's {show(old)}: --evaluate "
+                f"plays the checkpoint's env and network with its flags; only {valid} apply"
+            )
+
+
+def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray:
+    """--evaluate: play episodes with a checkpoint's network, print each score and the mean.
+    A flag named on the command line (`given`) that the checkpoint's flags contradict is
+    refused (check_evaluate_flags)."""
     checkpoint = load_checkpoint(args.evaluate, agent, "--evaluate")
     try:
         trained = agent.Args(**agent.trained_args(checkpoint))
@@ -162,6 +184,7 @@ def evaluate(agent: Any, args: Any) -> np.ndarray:
         raise UsageError(
             f"checkpoint {args.evaluate!r} has other flags than this script: {e}"
         ) from e
+    check_evaluate_flags(trained, args, given)
     episodes = evaluation_episodes(args)
     if episodes < 1:
         raise UsageError(f"--eval-episodes must be >= 1 (got {episodes})")

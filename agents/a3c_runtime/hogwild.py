@@ -14,7 +14,7 @@ import torch
 import torch.nn as nn
 
 from .flags import UsageError
-from .snapshots import StepMarks, unpickled
+from .snapshots import StepMarks, restored_state
 
 
 class Shared:
@@ -66,7 +66,7 @@ class Shared:
         """A worker's state from the checkpoint of a resumed run, in the order its `state()`
         gives it, each part that the checkpoint holds in place of the fresh one given."""
         saved = self.marks.resumed_states.get(worker_id)
-        return tuple(fresh) if saved is None else unpickled(saved, fresh)
+        return tuple(fresh) if saved is None else restored_state(saved, fresh)
 
     def finish_worker(self, worker_id: int, state: Callable[[], tuple[Any, ...]]) -> None:
         """A worker's state as its loop ends, for the run's last checkpoint."""

@@ -90,3 +90,18 @@ def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> An
     for name in COMMAND_LINE_ONLY:
         values[name] = getattr(args, name)
     return agent.Args(**values)
+
+
+def differing_flags(agent: Any, checkpoint: dict, args: Any) -> list[str]:
+    """The flags (COMMAND_LINE_ONLY aside) of args, defaults resolved, that differ from the run
+    a checkpoint holds, each as `--name THE_RUN'S, not ARGS'`: [] when the checkpoint is of the
+    run args describe (a sweep's planned run, say)."""
+    trained, default = agent.trained_args(checkpoint), agent.Args()
+    differ = []
+    for name in (f.name for f in dataclasses.fields(agent.Args)):
+        if name in COMMAND_LINE_ONLY:
+            continue
+        old = trained[name] if name in trained else getattr(default, name)
+        if getattr(args, name) != old:
+            differ.append(f"{flag(name)} {show(old)}, not {show(getattr(args, name))}")
+    return differ

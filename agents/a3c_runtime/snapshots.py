@@ -15,8 +15,11 @@ updating theta while the copy is taken, and their own states are saved only when
 normally: evaluations are of theta at (about) their step, and a resumed run is a run like the
 stopped one, not the same run.
 
-A worker's state is pickled; what cannot be pickled (ale-py's C++ vector env) is left out, and
-a resumed run makes that part afresh (its envs start new games)."""
+A worker's state is kept in the form a checkpoint loads safely (`torch.load(weights_only=True)`:
+tensors, numbers, strings, lists, tuples and dicts), never pickled: its generator as its
+`bit_generator.state`, arrays as tensors, and its envs as their own `get_state()` (Catch's
+vector env and its frame stacks). What has no such form (ale-py's C++ vector env) is left out,
+and a resumed run makes that part afresh (its envs start new games)."""
 
 from __future__ import annotations
 
@@ -26,35 +29,72 @@ import queue
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import torch
 
 NEVER = 2**62  # a mark no run reaches: no snapshots until a run sets the marks
 EVALUATE, CHECKPOINT, FINAL = "evaluate", "checkpoint", "final"
 
 
-def pickled(objects: tuple[Any, ...]) -> list[bytes | None]:
-    """Each object pickled, or None where it cannot be (it is made afresh on resume)."""
-    states = []
-    for obj in objects:
-        try:
-            states.append(pickle.dumps(obj))
-        except (TypeError, AttributeError, pickle.PicklingError):
-            states.append(None)
-    return states
+def saved_state(parts: tuple[Any, ...]) -> list[Any]:
+    """Each part of a worker's state in a checkpoint's safe form, or None where it has none (it
+    is made afresh on resume): a NumPy generator's `bit_generator.state`, an array as a tensor,
+    a tensor (or a tuple of them, an LSTM's state) as it is, an env as its `get_state()`."""
+    saved: list[Any] = []
+    for part in parts:
+        if isinstance(part, np.random.Generator):
+            saved.append({"bit_generator": part.bit_generator.state})
+        elif isinstance(part, np.ndarray):
+            saved.append(torch.from_numpy(np.array(part, copy=True)))
+        elif torch.is_tensor(part) or isinstance(part, tuple):
+            saved.append(copy_of(part))
+        elif callable(getattr(part, "get_state", None)):
+            saved.append({"env": tensors_of(part.get_state())})
+        else:
+            saved.append(None)
+    return saved
 
 
-def unpickled(states: list[bytes | None], fresh: tuple[Any, ...]) -> tuple[Any, ...]:
-    """The saved objects, the fresh ones where none was saved; a fresh object replaced by its
-    saved state is closed (an env)."""
+def restored_state(saved: list[Any], fresh: tuple[Any, ...]) -> tuple[Any, ...]:
+    """The parts of a worker's state from `saved_state`'s form, each set into (or in place of)
+    the fresh part the worker made, that part where none was saved."""
     restored = []
-    for state, obj in zip(states, fresh, strict=True):
+    for state, part in zip(saved, fresh, strict=True):
         if state is None:
-            restored.append(obj)
-            continue
-        if callable(getattr(obj, "close", None)):
-            obj.close()
-        restored.append(pickle.loads(state))
+            restored.append(part)
+        elif isinstance(part, np.random.Generator):
+            part.bit_generator.state = state["bit_generator"]
+            restored.append(part)
+        elif isinstance(part, np.ndarray):
+            restored.append(state.numpy())
+        elif callable(getattr(part, "set_state", None)):
+            part.set_state(arrays_of(state["env"]))
+            restored.append(part)
+        else:
+            restored.append(state)
     return tuple(restored)
+
+
+def tensors_of(value: Any) -> Any:
+    """NumPy arrays (and NumPy scalars) as tensors, through dicts, lists and tuples."""
+    if isinstance(value, (np.ndarray, np.generic)):
+        return torch.from_numpy(np.array(value, copy=True))
+    if isinstance(value, dict):
+        return {key: tensors_of(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(tensors_of(item) for item in value)
+    return value
+
+
+def arrays_of(value: Any) -> Any:
+    """tensors_of reversed: tensors as NumPy arrays, through dicts, lists and tuples."""
+    if torch.is_tensor(value):
+        return value.numpy()
+    if isinstance(value, dict):
+        return {key: arrays_of(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(arrays_of(item) for item in value)
+    return value
 
 
 def copy_of(tensors: Any) -> Any:
@@ -80,10 +120,15 @@ class StepMarks:
     def __init__(self, ctx: Any):
         self.marks = torch.full((2,), NEVER, dtype=torch.int64).share_memory_()
         self.lock = ctx.Lock()  # one worker at a time takes a snapshot and moves the mark
-        self.events = ctx.Queue()  # to the main process: (kind, step, ...)
+        self.events = ctx.Queue()  # to the main process: (number, (kind, step, ...))
+        # the marks' events are numbered as they are sent (under the lock): each process's queue
+        # writes through its own thread, so they may arrive out of order; receive() restores it
+        self.sent = torch.zeros(1, dtype=torch.int64).share_memory_()
+        self.held: dict[int, tuple] = {}  # main process: events that came before an earlier one
+        self.next_number = 0
         self.eval_interval = self.checkpoint_interval = self.total = NEVER
         self.exact = False  # one worker: checkpoints carry its state
-        self.resumed_states: dict[int, list[bytes | None]] = {}
+        self.resumed_states: dict[int, list[Any]] = {}
 
     def start(self, start_step: int, args: Any, resumed_states: dict | None) -> None:
         """Set the marks for a run from start_step (before the workers fork)."""
@@ -104,7 +149,7 @@ class StepMarks:
                     self.send(EVALUATE, step, copy_of(shared.model.state_dict()))
                 self.marks[0] = next_mark(step, self.eval_interval)
             if step >= int(self.marks[1]):
-                states = {worker_id: pickled(state())} if self.exact and state else {}
+                states = {worker_id: saved_state(state())} if self.exact and state else {}
                 model = copy_of(shared.model.state_dict())
                 optimizer = copy_of(shared.optimizer.state_dict())
                 self.send(CHECKPOINT, step, model, optimizer, states)
@@ -117,19 +162,36 @@ class StepMarks:
         if orphaned:
             self.events.cancel_join_thread()
         elif int(self.marks.min()) < NEVER:  # in a run (not a worker called by a test alone)
-            self.send(FINAL, worker_id, pickled(state()))
+            self.send(FINAL, worker_id, saved_state(state()), numbered=False)  # in any order
 
-    def send(self, *event: Any) -> None:
+    def send(self, *event: Any, numbered: bool = True) -> None:
         """An event for the main process, as bytes: tensors by value (torch's own pickling for
-        multiprocessing would share them through a file descriptor of this process)."""
-        self.events.put(pickle.dumps(event))
+        multiprocessing would share them through a file descriptor of this process). A mark's
+        event is numbered: it is sent with the lock held, in step order."""
+        number = None
+        if numbered:
+            number = int(self.sent)
+            self.sent += 1
+        self.events.put(pickle.dumps((number, event)))
 
-    def receive(self) -> tuple | None:
-        """The next event, or None when there is none yet (in the main process)."""
-        try:
-            return pickle.loads(self.events.get_nowait())
-        except queue.Empty:
-            return None
+    def receive(self, every: bool = False) -> tuple | None:
+        """The next event in the order the workers sent them (one that arrives before an earlier
+        one waits for it), or None when there is none yet (in the main process). every=True,
+        once the workers have ended: whatever is held, in order, past any gap (a worker killed
+        while its event was on its way)."""
+        while self.next_number not in self.held:
+            try:
+                number, event = pickle.loads(self.events.get_nowait())
+            except queue.Empty:
+                if not (every and self.held):
+                    return None
+                self.next_number = min(self.held)
+                break
+            if number is None:
+                return event
+            self.held[number] = event
+        self.next_number += 1
+        return self.held.pop(self.next_number - 1)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

@@ -20,8 +20,12 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
   the folder `future_work_runs` reads from their command line);
 - `training_scalars`: a run's TensorBoard training scalars by 1M steps;
 - `record_play`: a checkpoint's agent playing one episode, as an animated GIF;
+- `convert_checkpoint`: a checkpoint from before safe loading, that its owner trusts, into the
+  safe form (docs/runs.md);
 - `atari_report`: the Atari lines across seeds and games (the IQM, means with t intervals over
-  seeds, a performance profile drawn with rliable; its lines are data: atari_report.toml).
+  seeds, a performance profile drawn with rliable; its lines are data: atari_report.toml);
+- `campaign`: a fixed plan of sweeps run in its order over sessions, resumable, with its
+  progress (results/campaign/plan.toml).
 
 Nothing runs at import; the tools' own dependencies (matplotlib, scipy, rliable) are the `tools`
 extra.

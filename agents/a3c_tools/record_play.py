@@ -17,7 +17,6 @@ writes the GIF.
 from __future__ import annotations
 
 import argparse
-import io
 import sys
 from pathlib import Path
 
@@ -30,22 +29,13 @@ FRAMES_PER_SECOND = {"catch": 10, "atari": 15}  # Catch has no clock; ALE: 60 Hz
 
 
 def checkpoint_script(path: str) -> str:
-    """The agent script (agents/<name>) that wrote the checkpoint, read after its seal is
-    verified; a bad file is refused in one line."""
+    """The agent script (agents/<name>) that wrote the checkpoint, read safely
+    (a3c_runtime.checkpoints.read_checkpoint); a bad file is refused in one line."""
     from a3c_runtime import UsageError
-    from a3c_runtime.checkpoints import check_checkpoint_path, verify_checkpoint
+    from a3c_runtime.checkpoints import read_checkpoint
 
-    check_checkpoint_path(path)
-    data = Path(path).read_bytes()
-    problem = verify_checkpoint(data)
-    if problem is not None:
-        raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
-    try:
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
-    except Exception as e:
-        raise UsageError(f"{path!r} is not a checkpoint of the agent scripts: {e}") from None
-    script = checkpoint.get("script") if isinstance(checkpoint, dict) else None
-    if not script or not (AGENTS / script).is_file():
+    script = read_checkpoint(path).get("script")
+    if not isinstance(script, str) or not script or not (AGENTS / script).is_file():
         raise UsageError(f"{path!r} does not name an agent script that wrote it")
     return script
 

@@ -61,8 +61,12 @@ Resuming. OUT/sweep.json holds the sweep's configuration (script name, samples, 
 step budget, seed). Started again with the same OUT, the sweep refuses a different configuration
 (exit 2, naming what differs) and otherwise skips every run in the table (ok or failed); a run
 that was in progress resumes from its checkpoint with its own flags (`--resume`, which keeps
-every flag of the run), or starts again from scratch where it had written none (its run folder
-is deleted first). --runs, the backend and the concurrency may change between starts.
+every flag of the run; a run that had finished, its row not yet in the table, is scored as it
+is), or starts again from scratch where it had written none (its run folder is deleted first).
+A checkpoint in a run's folder that is not that run's (another script's, other flags or another
+seed than the run's, or one that does not load safely) refuses the sweep in one line, exit 2,
+before anything runs, naming the folder to move or remove. --runs, the backend and the
+concurrency may change between starts.
 
 Ctrl-C (SIGINT) or SIGTERM stops the sweep: no new runs start, each running run gets SIGINT (the
 scripts checkpoint and exit) and is not recorded, so it reruns on the next start; exit code 130.
@@ -967,6 +971,15 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
             print(shlex.join(["python", *run.command(args.script, out / RUNS_DIR / run.run_id)]))
         return 0
     with lock_folder(out):  # first: nothing in the folder is read or written without it
+        mismatch = config_mismatch(out, config)
+        if mismatch:
+            raise UsageError(mismatch)
+        # a run folder holding a checkpoint that is not its run's refuses the sweep, as it is
+        table = ResultsTable(out / TABLE_NAME, names)
+        for run in (run for run in runs if not table.finished(run.run_id)):
+            problem = foreign_checkpoint(args.script, run, out / RUNS_DIR / run.run_id)
+            if problem is not None:
+                raise UsageError(problem)
         check_config(out, config)
         return run_sweep(args, out, runs, names)
 
@@ -981,6 +994,37 @@ def configuration(args: argparse.Namespace, fixed: list[str]) -> dict:
         "seed": args.seed,
         "score": f"mean of the final {SCORE_LAST} evaluations",
     }
+
+
+def foreign_checkpoint(script: str, run: Run, run_dir: Path) -> str | None:
+    """Why the checkpoint in a run's folder is not that run's to resume (another script's, or
+    other flags or another seed than the run's; or one that does not load safely), or None:
+    none there, the run's own, or a script without the agents' Args (nothing to compare)."""
+    path = run_dir / "checkpoint.pt"
+    if not path.is_file() or agent_args(Path(script)) is None:
+        return None
+    agent = getattr(load_script(Path(script)), "AGENT", None)
+    if agent is None:
+        return None
+    import tyro
+    from a3c_runtime import UsageError as RunUsageError
+    from a3c_runtime import load_checkpoint, resolve_defaults
+    from a3c_runtime.resume import differing_flags
+
+    try:
+        checkpoint = load_checkpoint(str(path), agent)
+        planned = resolve_defaults(tyro.cli(agent.Args, args=run.command(script, run_dir)[1:]))
+    except RunUsageError as e:
+        reason = str(e)
+    else:
+        differ = differing_flags(agent, checkpoint, planned)
+        if not differ:
+            return None
+        reason = "it holds a run with " + "; ".join(differ[:4]) + (" ..." if differ[4:] else "")
+    return (
+        f"{path} is not {run.run_id}'s to resume ({reason}); nothing was run: move or remove "
+        f"{run_dir} for the sweep to start that run afresh"
+    )
 
 
 def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[str]) -> int:

@@ -1,0 +1,218 @@
+"""Nothing the project loads from a file runs code: a checkpoint carrying a pickled object whose
+`__reduce__` would create a file, planted in each part a checkpoint has and sealed as the
+project seals its own, is refused in one line by every entry point that reads checkpoints, and
+the file is never created. Checkpoints from before safe loading are refused naming the command
+that converts them; converted, they load and resume as they were."""
+
+import importlib.util
+import io
+import pickle
+import zipfile
+
+import a3c_runtime as runtime
+import numpy as np
+import pytest
+import torch
+from a3c_runtime.snapshots import restored_state, saved_state
+from a3c_tools import convert_checkpoint, record_play, sweep
+from conftest import (
+    ROOT,
+    load_script,
+    main_exit,
+    read_checkpoint,
+    rewrite_checkpoint,
+    run_main,
+    shared_for,
+    tiny_args,
+)
+
+import catch_env  # noqa: F401  (registers Catch-v0)
+from catch_env.wrappers import make_vector_env
+
+
+class Payload:
+    """Unpickled, it creates the file `marker` (builtins.open, as any callable could be)."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def catch_worker_state() -> tuple:
+    """A one-worker Catch run's state as its worker gives it: generator, envs, next frames."""
+    envs = make_vector_env("Catch-v0", 2)
+    obs, _ = envs.reset(seed=3)
+    for t in range(5):
+        obs, *_ = envs.step(np.array([t % 3, 1]))
+    return np.random.default_rng(7), envs, obs.copy()
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory):
+    """A real a3c_ff.py checkpoint with every part a checkpoint can have."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    shared = shared_for(module, args)
+    path = tmp_path_factory.mktemp("good") / "checkpoint.pt"
+    snapshot = {
+        "workers": {0: saved_state(catch_worker_state())},
+        "pending_evaluations": [(1000, runtime.snapshots.copy_of(shared.model.state_dict()))],
+    }
+    runtime.save_checkpoint(path, shared, args, 1.0, "a3c_ff.py", snapshot)
+    return path
+
+
+PLACES = {  # each part of a checkpoint, and a payload put there
+    "args": lambda c, p: c["args"].update(exp_name=p),
+    "model": lambda c, p: c["model"].update({"value.weight": p}),
+    "optimizer": lambda c, p: c["optimizer"]["square_avg"].__setitem__(0, p),
+    "worker state": lambda c, p: c["workers"][0].__setitem__(1, p),
+    "pending evaluation": lambda c, p: c["pending_evaluations"].append((2000, p)),
+    "a key of its own": lambda c, p: c.update(extra=p),
+}
+
+
+def planted(good, folder, place, marker):
+    """A copy of the good checkpoint with the payload at place, sealed; its payload is live."""
+    checkpoint = read_checkpoint(good)
+    PLACES[place](checkpoint, Payload(marker))
+    path = folder / "run" / "checkpoint.pt"
+    path.parent.mkdir(parents=True)
+    rewrite_checkpoint(path, checkpoint)
+    torch.load(path, weights_only=False)  # what an unsafe loader would do: the file appears
+    assert marker.exists()
+    marker.unlink()
+    return path
+
+
+def fault_injection():
+    spec = importlib.util.spec_from_file_location(
+        "fault_injection", ROOT / "benchmarks" / "fault_injection.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("place", PLACES)
+def test_a_payload_anywhere_in_a_checkpoint_never_runs(place, good, tmp_path, monkeypatch, capsys):
+    marker = tmp_path / "pwned"
+    path = planted(good, tmp_path, place, marker)
+    before = path.read_bytes()
+    module = load_script("a3c_ff")
+    for mode in ("--resume", "--evaluate"):
+        code, err = main_exit(module, [mode, str(path), "--num-workers", "1"], monkeypatch, capsys)
+        assert code == 2 and err.count("\n") == 1, (mode, err)
+        assert "cannot be loaded safely: it holds more than data" in err, err
+    result = run_main(record_play.main, [str(path), "-o", str(tmp_path / "play.gif")])
+    assert result.returncode == 2 and "cannot be loaded safely" in result.stderr
+    assert result.stderr.count("\n") == 1, result.stderr
+    result = run_main(convert_checkpoint.main, [str(path)])  # only v1's worker pickles unpickle
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert runtime.checkpoints.checkpoint_step(path) is None  # the closing hint's reader
+    assert fault_injection().checkpoint_state(path) is None
+    out = tmp_path / "sweep"  # a sweep (and compare, through it) finding it in a run's folder
+    (out / "runs").mkdir(parents=True)
+    path.parent.rename(out / "runs" / "run-0000")
+    argv = [str(ROOT / "agents" / "a3c_ff.py"), "--out", str(out), "--runs", "1",
+            "--total-timesteps", "1000", "--", "--env", "Catch-v0"]  # fmt: skip
+    result = run_main(sweep.main, argv)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "is not run-0000's to resume" in result.stderr and "loaded safely" in result.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["runs"]  # nothing written
+    assert (out / "runs" / "run-0000" / "checkpoint.pt").read_bytes() == before
+    assert not marker.exists()
+
+
+def test_a_sweep_resumes_only_its_runs_own_checkpoint(good, tmp_path):
+    """A checkpoint of another seed in a run's folder: refused, naming the seed, nothing run."""
+    out = tmp_path / "sweep"
+    argv = [str(ROOT / "agents" / "a3c_ff.py"), "--out", str(out), "--runs", "1",
+            "--total-timesteps", "1000", "--seed", "11"]  # fmt: skip
+    (out / "runs" / "run-0000").mkdir(parents=True)
+    checkpoint = read_checkpoint(good)
+    checkpoint["args"].update(seed=5, total_timesteps=1000)
+    rewrite_checkpoint(out / "runs" / "run-0000" / "checkpoint.pt", checkpoint)
+    result = run_main(sweep.main, argv)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "--seed 5, not 11" in result.stderr, result.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["runs"]
+
+
+def v1_checkpoint(good, path, sealed: bool = False):
+    """The good checkpoint as the scripts wrote it before safe loading: format v1, each
+    worker's state pickled (and, before the seal, no zip comment)."""
+    checkpoint = read_checkpoint(good)
+    parts = catch_worker_state()
+    checkpoint.update(format="a3c-checkpoint-v1",
+                      workers={0: [pickle.dumps(part) for part in parts]})  # fmt: skip
+    if sealed:
+        rewrite_checkpoint(path, checkpoint)
+    else:
+        torch.save(checkpoint, path)
+    return parts
+
+
+@pytest.mark.parametrize("sealed", [False, True], ids=["before the seal", "sealed"])
+def test_an_old_checkpoint_is_refused_naming_the_command_that_converts_it(
+    sealed, good, tmp_path, monkeypatch, capsys
+):
+    path = tmp_path / "checkpoint.pt"
+    parts = v1_checkpoint(good, path, sealed)
+    before = path.read_bytes()
+    code, err = main_exit(load_script("a3c_ff"), ["--resume", str(path)], monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    said = "was written before checkpoints were safe to load" if sealed else "carries no seal"
+    assert said in err
+    assert f"convert it: python -m a3c_tools.convert_checkpoint {path}" in err
+    assert path.read_bytes() == before
+    result = run_main(convert_checkpoint.main, [str(path)])
+    assert result.returncode == 0 and result.stdout.startswith(f"converted {path}"), result.stderr
+    assert zipfile.ZipFile(path).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
+    assert not list(tmp_path.glob("*.tmp"))
+    checkpoint = runtime.load_checkpoint(str(path), load_script("a3c_ff").AGENT)
+    assert checkpoint["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
+    for key, value in read_checkpoint(good)["model"].items():
+        assert torch.equal(checkpoint["model"][key], value), key
+    # the worker's state, converted, goes on as the pickled one would have
+    rng, envs, obs = parts
+    fresh_envs = make_vector_env("Catch-v0", 2)
+    fresh_envs.reset(seed=0)
+    fresh = (np.random.default_rng(0), fresh_envs, np.zeros_like(obs))
+    rng2, envs2, obs2 = restored_state(checkpoint["workers"][0], fresh)
+    assert np.array_equal(obs2, obs) and rng2.random() == rng.random()
+    for t in range(30):
+        actions = np.array([t % 3, (t * 7) % 3])
+        for a, b in zip(envs2.step(actions)[:4], envs.step(actions)[:4], strict=True):
+            assert np.array_equal(a, b)
+    again = run_main(convert_checkpoint.main, [str(path)])
+    assert again.returncode == 0 and "in the safe form already" in again.stdout
+
+
+def test_the_committed_checkpoints_load_safely():
+    import subprocess
+
+    listed = subprocess.run(["git", "ls-files", "*.pt"], cwd=ROOT, capture_output=True, text=True)
+    paths = listed.stdout.split()
+    assert paths, "no committed checkpoint found"
+    for name in paths:
+        checkpoint = runtime.checkpoints.read_checkpoint(str(ROOT / name))
+        assert checkpoint["format"] == runtime.checkpoints.CHECKPOINT_FORMAT, name
+
+
+def test_what_a_worker_state_saves_is_data(good):
+    """The safe form holds tensors, numbers, strings, lists, tuples and dicts only."""
+    allowed = (torch.Tensor, int, float, str, bool, type(None))
+
+    def data_only(value):
+        if isinstance(value, dict):
+            return all(data_only(k) and data_only(v) for k, v in value.items())
+        if isinstance(value, (list, tuple)):
+            return all(data_only(v) for v in value)
+        return isinstance(value, allowed)
+
+    assert data_only(read_checkpoint(good))
+    buffer = io.BytesIO(good.read_bytes())
+    assert isinstance(torch.load(buffer, weights_only=True)["workers"][0][1], dict)
