@@ -359,9 +359,11 @@ def test_no_room_for_the_shared_network_is_one_line_and_creates_nothing(tmp_path
     assert not run_dir.exists()
 
 
+# a progress line every 0.2 s: the SIGKILL case waits for the first, and on an idle machine the
+# whole run takes a few seconds (the default 5 s interval printed none before it ended)
 EXACT = ["--num-workers", "1", "--total-timesteps", "6000", "--eval-interval", "1000",
          "--checkpoint-interval", "500", "--eval-episodes", "5",
-         "--envs-per-worker", "4"]  # fmt: skip
+         "--envs-per-worker", "4", "--log-interval", "0.2"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
