@@ -457,3 +457,12 @@ def test_the_tools_help_prints_single_percent_signs(tool):
     done = run_main(module.main, ["--help"])
     assert done.returncode == 0 and "usage" in done.stdout
     assert "%%" not in done.stdout and "%(" not in done.stdout
+
+
+def test_the_runs_that_would_decide_a_row_stop_at_max_runs():
+    """Beyond MAX_RUNS per line the estimate is "would not decide it", never MAX_RUNS + 1."""
+    for distance in np.geomspace(1e-3, 1.0, 400):
+        needed = paired.runs_to_decide(float(distance), 0.1, 8)
+        assert needed is None or 8 < needed <= paired.MAX_RUNS, (distance, needed)
+    words = paired.verdict("better", 0.0051, -0.0949, 0.1051, 8)  # needs about 401 runs
+    assert f"about {paired.MAX_RUNS + 1} runs" not in words, words

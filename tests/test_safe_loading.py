@@ -141,6 +141,38 @@ def test_a_sweep_resumes_only_its_runs_own_checkpoint(good, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["runs"]
 
 
+def test_a_sweep_resumes_its_runs_checkpoint_made_on_a_host_of_other_precision(good, tmp_path):
+    """--precision auto resolves by the CPU (bf16-learn with native bf16, fp32 without): the
+    run's checkpoint from a host that resolved it otherwise is still the run's own."""
+    out = tmp_path / "sweep"
+    (out / "runs" / "run-0000").mkdir(parents=True)
+    checkpoint = read_checkpoint(good)
+    planned = runtime.flags.resolve_precision("auto", checkpoint["args"]["envs_per_worker"])
+    other = "fp32" if planned != "fp32" else "bf16-learn"
+    checkpoint["args"].update(seed=11, total_timesteps=1000, num_workers=1, precision=other)
+    path = out / "runs" / "run-0000" / "checkpoint.pt"
+    rewrite_checkpoint(path, checkpoint)
+    script = str(ROOT / "agents" / "a3c_ff.py")
+    config = {"samples": [], "fixed_flags": [], "total_timesteps": 1000, "seed": 11}
+    run = sweep.plan_runs(config, 1)[0]
+    assert sweep.foreign_checkpoint(script, run, path.parent) is None
+    checkpoint["args"].update(seed=5)  # another run's, all the same
+    rewrite_checkpoint(path, checkpoint)
+    refused = sweep.foreign_checkpoint(script, run, path.parent)
+    assert refused is not None and "--seed 5, not 11" in refused
+
+
+def test_an_unsealed_safe_checkpoint_converted_keeps_its_worker_states(good, tmp_path):
+    path = tmp_path / "checkpoint.pt"
+    checkpoint = read_checkpoint(good)
+    torch.save(checkpoint, path)  # the safe form, but no seal
+    assert run_main(convert_checkpoint.main, [str(path)]).returncode == 0
+    converted = runtime.checkpoints.read_checkpoint(str(path))
+    assert converted["workers"].keys() == checkpoint["workers"].keys()
+    for worker_id, state in checkpoint["workers"].items():
+        assert repr(converted["workers"][worker_id]) == repr(state)
+
+
 def v1_checkpoint(good, path, sealed: bool = False):
     """The good checkpoint as the scripts wrote it before safe loading: format v1, each
     worker's state pickled (and, before the seal, no zip comment)."""

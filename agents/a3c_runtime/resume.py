@@ -92,14 +92,16 @@ def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> An
     return agent.Args(**values)
 
 
-def differing_flags(agent: Any, checkpoint: dict, args: Any) -> list[str]:
-    """The flags (COMMAND_LINE_ONLY aside) of args, defaults resolved, that differ from the run
-    a checkpoint holds, each as `--name THE_RUN'S, not ARGS'`: [] when the checkpoint is of the
-    run args describe (a sweep's planned run, say)."""
+def differing_flags(
+    agent: Any, checkpoint: dict, args: Any, skip: tuple[str, ...] = ()
+) -> list[str]:
+    """The flags (COMMAND_LINE_ONLY and skip aside) of args, defaults resolved, that differ from
+    the run a checkpoint holds, each as `--name THE_RUN'S, not ARGS'`: [] when the checkpoint is
+    of the run args describe (a sweep's planned run, say)."""
     trained, default = agent.trained_args(checkpoint), agent.Args()
     differ = []
     for name in (f.name for f in dataclasses.fields(agent.Args)):
-        if name in COMMAND_LINE_ONLY:
+        if name in COMMAND_LINE_ONLY or name in skip:
             continue
         old = trained[name] if name in trained else getattr(default, name)
         if getattr(args, name) != old:

@@ -229,7 +229,8 @@ def write_progress(items: list[Item], plan: Path) -> bool:
 
 
 def cpu_model() -> str:
-    """The CPU's model name (lscpu's), for the record of where each run ran."""
+    """The CPU's model name (as lscpu prints it, from /proc/cpuinfo), for the record of where
+    each run ran."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
@@ -286,10 +287,11 @@ def main(argv: list[str] | None = None) -> int:
     failed = False
     for item in items:
         for sweep in item.sweeps:
-            if len(read_rows(sweep.out)) >= sweep.runs:
+            before = len(read_rows(sweep.out))
+            if before >= sweep.runs:
                 continue
             print(f"== {item.id}: {sweep.out}: to {sweep.runs} runs", flush=True)
-            before, started = len(read_rows(sweep.out)), time.time()
+            started = time.time()
             code, _ = execute(sweep.command)
             log_sweep(options.plan, item, sweep, before, started)
             write_progress(items, options.plan)

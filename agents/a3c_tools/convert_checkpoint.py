@@ -34,6 +34,9 @@ def converted(checkpoint: dict) -> dict:
 
     workers = {}
     for worker_id, states in (checkpoint.get("workers") or {}).items():
+        if checkpoint.get("format") == CHECKPOINT_FORMAT:  # data already (an unsealed v2)
+            workers[int(worker_id)] = states
+            continue
         # the one place that unpickles: v1's worker states, on their owner's request
         parts = tuple(pickle.loads(state) if isinstance(state, bytes) else None for state in states)
         workers[int(worker_id)] = saved_state(parts)

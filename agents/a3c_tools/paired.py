@@ -114,10 +114,10 @@ def runs_to_decide(
     if distance <= 0 or runs < 2:
         return None
     spread = half_width * math.sqrt(runs) / t_quantile(runs, confidence)
-    n = np.arange(MAX_RUNS + 2)
+    n = np.arange(MAX_RUNS + 1)  # up to MAX_RUNS: beyond, "would not decide it"
     with np.errstate(invalid="ignore"):
-        fits = (n > runs) & (t_quantiles(confidence) * spread / np.sqrt(np.maximum(n, 1))
-                             < distance)  # fmt: skip
+        fits = (n > runs) & (t_quantiles(confidence)[: MAX_RUNS + 1] * spread
+                             / np.sqrt(np.maximum(n, 1)) < distance)  # fmt: skip
     return int(np.argmax(fits)) if fits.any() else None
 
 

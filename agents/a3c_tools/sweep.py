@@ -1013,11 +1013,14 @@ def foreign_checkpoint(script: str, run: Run, run_dir: Path) -> str | None:
 
     try:
         checkpoint = load_checkpoint(str(path), agent)
-        planned = resolve_defaults(tyro.cli(agent.Args, args=run.command(script, run_dir)[1:]))
+        given = tyro.cli(agent.Args, args=run.command(script, run_dir)[1:])
+        # --precision auto resolves by the CPU: a run continued on another host is still its own
+        skip = ("precision",) if getattr(given, "precision", None) == "auto" else ()
+        planned = resolve_defaults(given)
     except RunUsageError as e:
         reason = str(e)
     else:
-        differ = differing_flags(agent, checkpoint, planned)
+        differ = differing_flags(agent, checkpoint, planned, skip)
         if not differ:
             return None
         reason = "it holds a run with " + "; ".join(differ[:4]) + (" ..." if differ[4:] else "")

@@ -100,7 +100,7 @@ class Looks:
             return "not run yet"
         call = self.decisive.verdict(expect)
         if self.extension is not None and self.second is None:
-            call += f"; extension to {self.extension} runs in progress (campaign)"
+            call += f"; extension to {self.extension} runs (the plan's N) in progress (campaign)"
         return call
 
     def shown(self) -> str:
@@ -177,7 +177,7 @@ VERDICTS = ("reproduced", "contradicted", "inconclusive", "no verdict", "not run
 
 def head_of(call: str) -> str:
     """A verdict's first word(s): "inconclusive" of "inconclusive: about 11 runs ...", "reproduced"
-    of "reproduced; extension to 11 runs in progress (campaign)"."""
+    of "reproduced; extension to 11 runs (the plan's N) in progress (campaign)"."""
     return re.split(r"[:;]", call, maxsplit=1)[0]
 
 
