@@ -423,3 +423,19 @@ def test_vector_env_beyond_memory_is_one_clear_error():
 
 def test_package_exports():
     assert catch_env.ACTION_MEANINGS == ("NOOP", "LEFT", "RIGHT")
+
+
+@pytest.mark.parametrize("name", ["_obs", "ball_col", "_starts"])
+def test_the_vector_envs_state_with_an_array_of_another_shape_is_refused_unchanged(name):
+    """set_state checks each array's shape against its own, not only the number of envs."""
+    envs = gym.make_vec("Catch-v0", num_envs=3).unwrapped
+    envs.reset(seed=4)
+    before = envs.get_state()
+    state = envs.get_state()
+    state[name] = state[name][..., :-1]  # the same envs, one array a column short
+    with pytest.raises(ValueError, match=f"state '{name}' has shape"):
+        envs.set_state(state)
+    after = envs.get_state()
+    for key in CatchVectorEnv._STATE_ARRAYS:
+        assert np.array_equal(before[key], after[key]), key
+    assert before["rngs"] == after["rngs"]
