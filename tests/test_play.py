@@ -388,3 +388,29 @@ def test_vector_env_example_counts_episodes_with_next_step_autoreset() -> None:
     catches, rate = re.search(r"(\d+) catches \(catch rate ([\d.]+)\)", out).groups()
     assert 0 <= int(catches) <= 48 and float(rate) == pytest.approx(int(catches) / 48, abs=1e-3)
     assert re.search(r"[\d,]+ env steps/s", out)
+
+
+@pytest.mark.parametrize("limit", ["max_episodes", "max_steps"])
+@pytest.mark.parametrize("value", [0, -1])
+def test_play_refuses_a_limit_below_one(limit: str, value: int) -> None:
+    with pytest.raises(ValueError, match=f"{limit} must be positive, got {value}"):
+        play("Catch-v0", **{limit: value})
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kwargs", "fps"),
+    [
+        ("BreakoutNoFrameskip-v4", {}, 60.0),  # one frame a step
+        ("ALE/Breakout-v5", {}, 15.0),  # 4 frames a step
+        ("ALE/Breakout-v5", {"frameskip": (2, 5)}, 20.0),  # 2, 3 or 4 frames: 3 on average
+        ("Catch-v0", {}, None),  # its render_fps
+    ],
+)
+def test_default_fps_is_the_games_real_speed(env_id: str, kwargs: dict, fps: float | None) -> None:
+    pytest.importorskip("ale_py")
+    env = gym.make(env_id, **kwargs)
+    try:
+        expected = env.metadata["render_fps"] if fps is None else fps
+        assert play_module.default_fps(env) == pytest.approx(expected)
+    finally:
+        env.close()
