@@ -414,3 +414,24 @@ def test_default_fps_is_the_games_real_speed(env_id: str, kwargs: dict, fps: flo
         assert play_module.default_fps(env) == pytest.approx(expected)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("limit", ["max_episodes", "max_steps"])
+def test_a_limit_ends_the_session_on_its_step(limit: str) -> None:
+    """The step that reaches the limit ends the session there: a key pressed just after it
+    (Esc, queued by the step's callback) is not read, so the quit reason stays the limit's."""
+    steps: list[bool] = []  # whether each step ended its episode
+
+    def press_escape_at_the_limit(env, action, reward) -> None:
+        steps.append(env.unwrapped.ball_row == env.unwrapped.rules.paddle_row)
+        if (sum(steps) if limit == "max_episodes" else len(steps)) == 1 and (
+            limit == "max_steps" or steps[-1]
+        ):
+            post_key(pygame.K_ESCAPE)
+
+    stats = play(fps=FAST, seed=3, on_step=press_escape_at_the_limit, **{limit: 1})
+    assert stats.quit_reason == limit
+    assert stats.steps == len(steps)  # no step after the limit's
+    assert (stats.episodes, stats.steps > 1) == (
+        (1, True) if limit == "max_episodes" else (0, False)
+    )
