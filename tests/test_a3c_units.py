@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from conftest import load_script
+from conftest import ALL_SCRIPTS, load_script
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +59,38 @@ def test_weight_init_schemes(a3c):
             assert w.abs().max() <= bound
             assert w.abs().max() > 0.9 * bound
             assert torch.all(conv1.bias == 0)
+
+
+@pytest.mark.parametrize("name", ALL_SCRIPTS)
+@pytest.mark.parametrize(
+    ("scheme", "bias"),
+    [("torch", None), ("torch", 0.01), ("he", None), ("he", 0.01), ("uniform-sqrt3", None)],
+)
+def test_every_scripts_init_gives_each_layer_its_schemes_weights(name, scheme, bias):
+    """Each script's own copy of init_parameters (the thesis 6.3.3 schemes, A.1.3's biases) on a
+    conv and a linear layer, by their fan-in: He's N(0, 2 / fan_in) truncated at 2 sigma (std
+    0.88 sigma), U(+-sqrt(3 / fan_in)), or torch's default left as it is."""
+    torch.manual_seed(0)
+    probe = torch.nn.Sequential(torch.nn.Conv2d(4, 64, 8), torch.nn.Linear(512, 64))
+    default = [(layer.weight.clone(), layer.bias.clone()) for layer in probe]
+    load_script(name).init_parameters(probe, scheme, bias)
+    for layer, (default_weight, default_bias) in zip(probe, default, strict=True):
+        fan_in = layer.weight[0].numel()
+        w = layer.weight.detach()
+        if scheme == "he":
+            sigma = math.sqrt(2 / fan_in)
+            assert w.abs().max() <= 2 * sigma + 1e-6
+            assert w.std().item() == pytest.approx(0.88 * sigma, rel=0.05)
+        elif scheme == "uniform-sqrt3":
+            bound = math.sqrt(3 / fan_in)
+            assert 0.99 * bound < w.abs().max() <= bound
+            assert w.std().item() == pytest.approx(bound / math.sqrt(3), rel=0.05)
+        else:
+            assert torch.equal(w, default_weight)
+        expected_bias = (
+            default_bias if bias is None and scheme == "torch" else torch.full((64,), bias or 0.0)
+        )
+        assert torch.equal(layer.bias.detach(), expected_bias)
 
 
 def test_network_shapes_and_scaling(a3c):

@@ -6,7 +6,7 @@ LSTM's per-env resets; and every script end to end with K = 4 on Catch-v0 and on
 import numpy as np
 import pytest
 import torch
-from conftest import SCRIPTS, load_script, main_exit, shared_for, tiny_args
+from conftest import ALL_SCRIPTS, SCRIPTS, load_script, main_exit, shared_for, tiny_args
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +76,10 @@ def test_the_batched_loss_is_the_sum_of_the_per_env_losses(name):
         torch.testing.assert_close(batched_grad, summed_grad, rtol=1e-3, atol=1e-4 * scale)
 
 
-def test_sample_actions_inverse_cdf_per_row(a3c):
+@pytest.mark.parametrize("name", ALL_SCRIPTS)
+def test_sample_actions_inverse_cdf_per_row(name):
+    """Every script's own copy of sample_actions."""
+    a3c = load_script(name)
     probs = np.array([[0.2, 0.3, 0.5]] * 6)
     uniforms = np.array([0.0, 0.19, 0.21, 0.49, 0.51, 0.999])
     assert a3c.sample_actions(probs, uniforms).tolist() == [0, 0, 1, 1, 2, 2]

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from conftest import load_script, main_exit, shared_for
+from conftest import ALL_SCRIPTS, load_script, main_exit, shared_for
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -61,6 +61,15 @@ def test_distances_by_hand(lpq, glpq, distance):
     np.testing.assert_allclose(got.numpy(), [EXPECTED[distance]], rtol=1e-6, atol=1e-7)
     if distance != "inverse-squared-euclidean":  # GLPQ needs d >= 0: it offers the others
         torch.testing.assert_close(glpq.prototype_distances(H, W, distance), got)
+
+
+@pytest.mark.parametrize(
+    "name", [n for n in ALL_SCRIPTS if hasattr(load_script(n), "prototype_distances")]
+)
+@pytest.mark.parametrize("distance", ["bogus", "zz"])  # before and after every name's spelling
+def test_an_unknown_distance_is_refused_by_every_copy(name, distance):
+    with pytest.raises(ValueError, match=f"unknown distance '{distance}'"):
+        load_script(name).prototype_distances(H, W, distance)
 
 
 @pytest.mark.parametrize("distance", ["cosine", "pearson"])
