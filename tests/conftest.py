@@ -143,3 +143,18 @@ def run_main(main, argv: list[str], cwd: Path = ROOT) -> subprocess.CompletedPro
     finally:
         os.chdir(before)
     return subprocess.CompletedProcess(argv, code or 0, out.getvalue(), err.getvalue())
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test whose module has a `start_at_collection` function runs last: its work starts once
+    collection ends (below) and goes on beside the other tests, which mostly wait on processes
+    and leave a core free (tests/test_learning.py's runs)."""
+    items.sort(key=lambda item: hasattr(item.module, "start_at_collection"))  # stable
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    if session.config.option.collectonly:
+        return
+    modules = {item.module for item in session.items if hasattr(item.module, "start_at_collection")}
+    for module in modules:
+        module.start_at_collection()

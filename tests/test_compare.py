@@ -431,7 +431,8 @@ def test_a_tiny_comparison_end_to_end(tmp_path):
     nothing."""
     out = tmp_path / "cmp"
     argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", "2000",
-            "--eval-episodes", "2", "--cpus", "2", "--out", str(out)]  # fmt: skip
+            "--eval-interval", "400", "--eval-episodes", "2", "--cpus", "2",
+            "--out", str(out)]  # fmt: skip
     done = run_main(compare.main, argv)
     assert done.returncode == 0, done.stdout + done.stderr
     base, other = table(out / "base"), table(out / "other")

@@ -8,12 +8,18 @@ plays its own seeded episodes); the fast setting's batched actors (K = 16 envs, 
 threshold sits well below what the loop's runs reach and well above random play (0.2, give or take
 0.02 over 500 episodes): seeds 2 and 3 ended at the scores beside it, and a machine whose floating
 point takes seed 1's run another way is one more such draw, not a run at the threshold. The three
-run side by side, each main() in a forked copy of the test process (no new interpreter), so that
-one-worker runs fill the two cores.
+run side by side, each main() in a forked copy of the test process (no new interpreter), started
+as soon as collection has selected this test, which runs last: the runs learn while the slow
+tier's other tests, which mostly wait on processes, run beside them.
 """
 
+import ctypes
 import os
+import shutil
+import signal
 import sys
+import tempfile
+from pathlib import Path
 
 import pytest
 from conftest import load_script, read_evaluations
@@ -32,13 +38,15 @@ RANDOM_PLAY = 0.28  # above what an untrained network scores on 500 episodes (0.
 
 def start_run(name: str, argv: list[str]) -> int:
     """main() of the script in a forked copy of this process, as `python agents/<name>.py *argv`
-    would run it; the child's pid (its exit status is main()'s exit code)."""
+    would run it; the child's pid (its exit status is main()'s exit code). The child dies with
+    this process, as a run's workers die with their run."""
     module = load_script(name)  # imported before the fork, once
     pid = os.fork()
     if pid:
         return pid
     code = 1
     try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
         sys.argv = [f"{name}.py", *argv]
         code = module.main() or 0
     except SystemExit as e:
@@ -47,25 +55,37 @@ def start_run(name: str, argv: list[str]) -> int:
         os._exit(code)
 
 
-@pytest.mark.slow
-def test_each_worker_loop_learns_catch(tmp_path):
-    """The three runs side by side (each is one worker: together they take the two cores)."""
-    pids = {}
+RUNS: dict[str, tuple[int, Path]] = {}  # loop: (pid, run folder)
+
+
+def start_at_collection() -> None:
+    """Start the three runs side by side (tests/conftest.py calls this once collection has
+    selected this module's test, which then runs last and waits for them)."""
+    folder = Path(tempfile.mkdtemp(prefix="learning-"))
     for name, (flags, _) in LEARNERS.items():
         argv = [
             *flags,
             *("--num-workers", "1", "--envs-per-worker", "16", "--t-max", "5", "--seed", "1"),
             *("--total-timesteps", str(STEPS), "--eval-interval", str(STEPS)),
-            *("--eval-episodes", str(EPISODES), "--run-dir", str(tmp_path / name)),
+            *("--eval-episodes", str(EPISODES), "--run-dir", str(folder / name)),
         ]
-        pids[name] = start_run(name, argv)
-    codes = {name: os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) for name, pid in pids.items()}
+        RUNS[name] = (start_run(name, argv), folder / name)
+
+
+@pytest.mark.slow
+def test_each_worker_loop_learns_catch():
+    if not RUNS:  # collected without conftest's hook
+        start_at_collection()
+    codes = {
+        name: os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) for name, (pid, _) in RUNS.items()
+    }
     assert codes == dict.fromkeys(LEARNERS, 0), codes
     scores = {}
     for name, (_, threshold) in LEARNERS.items():
-        start, final = [float(row["mean_return"]) for row in read_evaluations(tmp_path / name)]
+        start, final = [float(row["mean_return"]) for row in read_evaluations(RUNS[name][1])]
         assert start < RANDOM_PLAY, f"{name}'s untrained network already scores {start}"
         scores[name] = (final, threshold)
+    shutil.rmtree(RUNS["a3c_ff"][1].parent)
     print(f"(final score, threshold) after {STEPS:,} steps: {scores}")
     assert all(final >= threshold for final, threshold in scores.values()), (
         f"(final score, threshold) after {STEPS:,} steps: {scores}"

@@ -313,10 +313,10 @@ def test_a_full_disk_ends_the_run_cleanly_keeping_the_last_checkpoint(tmp_path):
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="mounting a small tmpfs needs root")
 def test_a_failed_tensorboard_write_ends_the_run_in_one_line(tmp_path):
-    """A real full disk that the TensorBoard events fill first: a 64 KB tmpfs, no checkpoint
+    """A real full disk that the TensorBoard events fill first: a 16 KB tmpfs, no checkpoint
     before the end, progress scalars every 0.1 s."""
     disk = tmp_path / "disk"
-    if not _mount_tmpfs(disk, 64 << 10):
+    if not _mount_tmpfs(disk, 16 << 10):
         pytest.skip("mount -t tmpfs is not permitted here")
     try:
         flags = [*TINY, "--total-timesteps", "10000000", "--log-interval", "0.1",
