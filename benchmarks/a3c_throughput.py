@@ -397,49 +397,62 @@ def main() -> None:
             print(f"{name}: {result[0]:,.0f} steps/s, {result[2]:.1f} page faults per step")
             measured[name, k, precision, replay, backend, threads].append(result)
 
-    baseline = np.mean(baselines, axis=0) if baselines else None
-    if len(baselines) > 1:
-        print(f"\nbaseline, mean of {len(baselines)} rounds: {baseline[0]:,.0f} steps/s "
-              f"(rounds: {', '.join(f'{b[0]:,.0f}' for b in baselines)})")  # fmt: skip
-    print(f"\n{'script':<12} {'K':>3} {'precision':>10} {'replay':>6} {'env':>9} {'steps/s':>9} "
-          f"{'per CPU-s':>10} {'of bound':>9} {'time/step vs a3c_ff':>20} "
-          f"{'vs baseline':>11}")  # fmt: skip
-    for (name, k, precision, replay, backend, threads), runs in measured.items():
-        sps, per_cpu, _ = np.mean(runs, axis=0)
-        ff = measured[("a3c_ff", k, precision, replay, backend, threads)]
-        ff_sps, ff_per_cpu, _ = np.mean(ff, axis=0)
-        env = (f"{backend}/{threads}" if backend == "native" else backend) if atari else "-"
-        line = f"{name:<12} {k:>3} {precision:>10} {replay:>6} {env:>9} {sps:>9,.0f} "
-        line += f"{per_cpu:>10,.0f} "
-        line += f"{per_cpu / bounds[name]:>9.0%} {ff_sps / sps:>9.2f}x wall "
-        line += f"{ff_per_cpu / per_cpu:>5.2f}x CPU"
+    if any(run[0] == 0 for runs in measured.values() for run in runs):
+        print(
+            "\nnote: a measurement saw no step in its window (the start-up took it): its "
+            "ratios print as nan or inf; measure with a longer --seconds"
+        )
+    # such a measurement divides by 0: said once above rather than as numpy warnings
+    with np.errstate(divide="ignore", invalid="ignore"):
+        baseline = np.mean(baselines, axis=0) if baselines else None
+        if len(baselines) > 1:
+            print(f"\nbaseline, mean of {len(baselines)} rounds: {baseline[0]:,.0f} steps/s "
+                  f"(rounds: {', '.join(f'{b[0]:,.0f}' for b in baselines)})")  # fmt: skip
+        print(f"\n{'script':<12} {'K':>3} {'precision':>10} {'replay':>6} {'env':>9} "
+              f"{'steps/s':>9} {'per CPU-s':>10} {'of bound':>9} {'time/step vs a3c_ff':>20} "
+              f"{'vs baseline':>11}")  # fmt: skip
+        for (name, k, precision, replay, backend, threads), runs in measured.items():
+            sps, per_cpu, _ = np.mean(runs, axis=0)
+            ff = measured[("a3c_ff", k, precision, replay, backend, threads)]
+            ff_sps, ff_per_cpu, _ = np.mean(ff, axis=0)
+            env = (f"{backend}/{threads}" if backend == "native" else backend) if atari else "-"
+            line = f"{name:<12} {k:>3} {precision:>10} {replay:>6} {env:>9} {sps:>9,.0f} "
+            line += f"{per_cpu:>10,.0f} "
+            line += f"{per_cpu / bounds[name]:>9.0%} {ff_sps / sps:>9.2f}x wall "
+            line += f"{ff_per_cpu / per_cpu:>5.2f}x CPU"
+            if baseline is not None:
+                line += f" {sps / baseline[0]:>10.2f}x"
+            print(line)
         if baseline is not None:
-            line += f" {sps / baseline[0]:>10.2f}x"
-        print(line)
-    if baseline is not None:
-        for setting in settings:
-            ff_sps, ff_per_cpu, _ = np.mean(measured[("a3c_ff", *setting)], axis=0)
-            print(f"a3c_ff {setting} vs the baseline loop: "
-                  f"{ff_sps / baseline[0]:.2f}x steps/s, {ff_per_cpu / baseline[1]:.2f}x per "
-                  f"CPU-second")  # fmt: skip
-    if atari and len(env_settings) > 1:
-        print(f"\nsteps/s of a3c_ff against the first env setting, {env_settings[0]}, same run:")
-        for setting in settings:
-            first = measured[("a3c_ff", *setting[:3], *env_settings[0])]
-            ratio = np.mean(measured[("a3c_ff", *setting)], axis=0)[0] / np.mean(first, axis=0)[0]
-            print(f"  {setting}: {ratio:.2f}x")
-    for (k, precision), rounds in ceilings.items():
-        emulator, network = np.mean(rounds, axis=0)
-        bound = 1 / (1 / emulator + 1 / network)
-        print(f"\nceilings, mean of {len(rounds)} round(s): emulator {emulator:,.0f} steps/s "
-              f"(AtariVectorEnv, 16 envs, {os.cpu_count()} threads, random actions), network "
-              f"{network:,.0f} (a3c_ff on Catch-v0, K={k} {precision}); "
-              f"the two sharing the cores: 1 / (1/{emulator:,.0f} + 1/{network:,.0f}) = "
-              f"{bound:,.0f} steps/s")  # fmt: skip
-        for setting in settings:
-            if setting[:2] == (k, precision):
-                sps = np.mean(measured[("a3c_ff", *setting)], axis=0)[0]
-                print(f"  a3c_ff {setting}: {sps:,.0f} steps/s = {sps / bound:.0%} of that bound")
+            for setting in settings:
+                ff_sps, ff_per_cpu, _ = np.mean(measured[("a3c_ff", *setting)], axis=0)
+                print(f"a3c_ff {setting} vs the baseline loop: "
+                      f"{ff_sps / baseline[0]:.2f}x steps/s, {ff_per_cpu / baseline[1]:.2f}x per "
+                      f"CPU-second")  # fmt: skip
+        if atari and len(env_settings) > 1:
+            print(
+                f"\nsteps/s of a3c_ff against the first env setting, {env_settings[0]}, same run:"
+            )
+            for setting in settings:
+                first = measured[("a3c_ff", *setting[:3], *env_settings[0])]
+                ratio = (
+                    np.mean(measured[("a3c_ff", *setting)], axis=0)[0] / np.mean(first, axis=0)[0]
+                )
+                print(f"  {setting}: {ratio:.2f}x")
+        for (k, precision), rounds in ceilings.items():
+            emulator, network = np.mean(rounds, axis=0)
+            bound = 1 / (1 / emulator + 1 / network)
+            print(f"\nceilings, mean of {len(rounds)} round(s): emulator {emulator:,.0f} steps/s "
+                  f"(AtariVectorEnv, 16 envs, {os.cpu_count()} threads, random actions), network "
+                  f"{network:,.0f} (a3c_ff on Catch-v0, K={k} {precision}); "
+                  f"the two sharing the cores: 1 / (1/{emulator:,.0f} + 1/{network:,.0f}) = "
+                  f"{bound:,.0f} steps/s")  # fmt: skip
+            for setting in settings:
+                if setting[:2] == (k, precision):
+                    sps = np.mean(measured[("a3c_ff", *setting)], axis=0)[0]
+                    print(
+                        f"  a3c_ff {setting}: {sps:,.0f} steps/s = {sps / bound:.0%} of that bound"
+                    )
 
 
 if __name__ == "__main__":
