@@ -1,5 +1,6 @@
 """Catch-v0: the Gymnasium contract, the thesis's rules, seeding, pickling and the vector env."""
 
+import io
 import os
 import pickle
 import subprocess
@@ -14,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import catch_env
+import catch_env.catch as catch_module
 from catch_env import CatchEnv, CatchRules, CatchVectorEnv
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
@@ -439,3 +441,24 @@ def test_the_vector_envs_state_with_an_array_of_another_shape_is_refused_unchang
     for key in CatchVectorEnv._STATE_ARRAYS:
         assert np.array_equal(before[key], after[key]), key
     assert before["rngs"] == after["rngs"]
+
+
+@pytest.mark.parametrize(
+    ("meminfo_kib", "limit", "used", "expected"),
+    [
+        (8 << 20, "max", 1 << 30, 8 << 30),  # no container limit: MemAvailable
+        (8 << 20, str(3 << 30), 1 << 30, 2 << 30),  # the limit less what the cgroup uses
+        (1 << 20, str(3 << 30), 1 << 30, 1 << 30),  # whichever is lower
+        (8 << 20, str(1 << 30), 2 << 30, 0),  # over its limit: no room, never negative
+    ],
+)
+def test_available_memory_is_the_lower_of_the_machines_and_the_containers(
+    monkeypatch, meminfo_kib, limit, used, expected
+):
+    files = {
+        "/proc/meminfo": f"MemTotal: {16 << 20} kB\nMemAvailable: {meminfo_kib} kB\n",
+        "/sys/fs/cgroup/memory.max": f"{limit}\n",
+        "/sys/fs/cgroup/memory.current": f"{used}\n",
+    }
+    monkeypatch.setattr(catch_module, "open", lambda path: io.StringIO(files[path]), raising=False)
+    assert catch_module.available_memory() == expected
