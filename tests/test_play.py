@@ -171,6 +171,14 @@ def test_closing_the_window_quits() -> None:
     assert stats.steps == 0
 
 
+@pytest.mark.parametrize("event_type", ["APP_LOWMEMORY", "SYSWMEVENT", "CLIPBOARDUPDATE"])
+def test_events_other_than_quit_and_keys_are_ignored(event_type: str) -> None:
+    """The system's events (numbered below and above the key events) neither quit nor press."""
+    post_before_play(pygame.event.Event(getattr(pygame, event_type)))
+    stats = play(fps=FAST, seed=0, max_steps=3)
+    assert (stats.quit_reason, stats.steps) == ("max_steps", 3)
+
+
 def test_sigterm_mid_game_stops_after_that_step() -> None:
     def refuse(signum: int, frame: object) -> None:
         # Stands in for the default action (killing pytest) should play() not catch it.
