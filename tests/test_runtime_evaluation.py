@@ -136,3 +136,21 @@ def test_evaluate_refuses_a_flag_the_checkpoint_contradicts(tmp_path, monkeypatc
     argv = ["--evaluate", str(path), "--env", "Catch-v0", "--seed", "4", "--eval-episodes", "1"]
     code, err = main_exit(module, argv, monkeypatch, capsys)
     assert code == 0 and err == "", err
+
+
+def test_evaluate_sets_glpqs_progress_to_the_checkpoints_share_of_t_max(
+    tmp_path, monkeypatch, capsys
+):
+    """--evaluate plays a GLPQ checkpoint at the temperature of its step: progress T / T_max."""
+    module = load_script("a3c_glpq")
+    args = tiny_args(module)
+    shared = shared_for(module, args)
+    shared.base_step[0] = 3 * args.total_timesteps // 4
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared, args, 1.0, script="a3c_glpq.py")
+    progress = []
+    monkeypatch.setattr(module.ActorCritic, "set_progress", lambda self, p: progress.append(p))
+    argv = ["--evaluate", str(path), "--eval-episodes", "1"]
+    code, err = main_exit(module, argv, monkeypatch, capsys)
+    assert code == 0, err
+    assert progress == [pytest.approx(0.75)]
