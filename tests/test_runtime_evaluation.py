@@ -154,3 +154,21 @@ def test_evaluate_sets_glpqs_progress_to_the_checkpoints_share_of_t_max(
     code, err = main_exit(module, argv, monkeypatch, capsys)
     assert code == 0, err
     assert progress == [pytest.approx(0.75)]
+
+
+@pytest.mark.parametrize("capture", [False, True])
+def test_the_evaluator_records_videos_only_with_capture_video(tmp_path, monkeypatch, capture):
+    module = load_script("a3c_ff")
+    args = tiny_args(module, capture_video=capture)
+    asked = []
+
+    def make_eval_envs(agent, args, video_dir, prefix="rl-video"):
+        asked.append(video_dir)
+        raise KeyboardInterrupt  # enough: the evaluator has said where its videos go
+
+    monkeypatch.setattr(runtime.evaluation, "make_eval_envs", make_eval_envs)
+    with pytest.raises(KeyboardInterrupt):
+        runtime.evaluation.evaluator(
+            module.AGENT, shared_for(module, args), args, None, str(tmp_path), None
+        )
+    assert asked == [str(tmp_path / "videos") if capture else None]
