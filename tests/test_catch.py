@@ -423,6 +423,18 @@ def test_vector_env_beyond_memory_is_one_clear_error():
     assert "\n" not in message
 
 
+@pytest.mark.parametrize(("obs_type", "side"), [("pixels", 84), ("grid", 24)])
+def test_the_memory_estimate_counts_the_frames_and_the_start_buffer(monkeypatch, obs_type, side):
+    """Per env: its frames (side x side bytes each) and its start buffer (3 int64 per start)."""
+    monkeypatch.setattr(catch_module, "available_memory", lambda: 1000)
+    per_env = catch_module.VECTOR_FRAMES_PER_ENV * side**2 + 4096 * 3 * 8
+    with pytest.raises(MemoryError) as error:
+        CatchVectorEnv(num_envs=3, obs_type=obs_type, start_buffer=4096)
+    sizes = f"about {catch_module.format_bytes(3 * per_env)} "
+    sizes += f"({catch_module.format_bytes(per_env)} per env)"
+    assert sizes in str(error.value), (sizes, str(error.value))
+
+
 def test_package_exports():
     assert catch_env.ACTION_MEANINGS == ("NOOP", "LEFT", "RIGHT")
 
