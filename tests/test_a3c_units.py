@@ -103,3 +103,19 @@ def test_network_shapes_and_scaling(a3c):
     np.testing.assert_allclose(log_probs.exp().sum(1).detach().numpy(), 1.0, rtol=1e-5)
     assert not torch.allclose(scaled(obs)[1], values)  # 1/255 scaling changes the output
     assert torch.allclose(scaled(obs)[1], raw(torch.ones(5, 4, 84, 84))[1], atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ALL_SCRIPTS)
+def test_the_loss_form_is_read_by_value_not_identity(name):
+    """A form read back from a checkpoint is an equal string, not the same object: it must
+    give the same loss as the literal (an `is` comparison would fall through to the other)."""
+    a3c_loss = load_script(name).a3c_loss
+    log_probs = torch.log(torch.tensor([[0.2, 0.8], [0.6, 0.4]]))
+    inputs = (log_probs, torch.tensor([1, 0]), torch.tensor([0.5, -0.2]), torch.tensor([1.0, 0.3]))
+    for form in ("code", "text"):
+        read_back = "".join(list(form))  # equal, not identical
+        assert read_back is not form
+        expected = a3c_loss(*inputs, 0.01, 0.5, form)
+        got = a3c_loss(*inputs, 0.01, 0.5, read_back)
+        for e, g in zip(expected, got, strict=True):
+            torch.testing.assert_close(g, e)

@@ -78,8 +78,9 @@ def test_the_batched_loss_is_the_sum_of_the_per_env_losses(name):
 
 @pytest.mark.parametrize("name", ALL_SCRIPTS)
 def test_sample_actions_inverse_cdf_per_row(name):
-    """Every script's own copy of sample_actions."""
+    """Every script's own copy of sample_actions, on K rows and on one (K = 1)."""
     a3c = load_script(name)
+    assert a3c.sample_actions(np.array([[0.2, 0.3, 0.5]]), np.array([0.9])).tolist() == [2]
     probs = np.array([[0.2, 0.3, 0.5]] * 6)
     uniforms = np.array([0.0, 0.19, 0.21, 0.49, 0.51, 0.999])
     assert a3c.sample_actions(probs, uniforms).tolist() == [0, 0, 1, 1, 2, 2]

@@ -360,3 +360,15 @@ def test_a_lost_point_is_minus_one_after_clipping(backend):
             break
     envs.close()
     assert lowest == -1.0
+
+
+@pytest.mark.parametrize("part", ["stack", "returns", "lengths"])
+def test_the_frame_stacks_state_of_another_shape_is_refused(part):
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("Catch-v0", 3)  # Catch's vector env under FrameStackVectorEnv
+    envs.reset(seed=4)
+    state = envs.get_state()
+    state[part] = np.asarray(state[part])[..., :-1]  # one column short
+    with pytest.raises(ValueError, match=f"state '{part}' has shape"):
+        envs.set_state(state)
