@@ -8,10 +8,9 @@ plays its own seeded episodes); the fast setting's batched actors (K = 16 envs, 
 threshold sits well below what the loop's runs reach and well above random play (0.2, give or take
 0.02 over 500 episodes): seeds 1 (the test's), 2 and 3 ended at the scores beside it, and a
 machine whose floating point takes seed 1's run another way is one more such draw, not a run at
-the threshold. The three
-run side by side, each main() in a forked copy of the test process (no new interpreter), started
-as soon as collection has selected this test, which runs last: the runs learn while the slow
-tier's other tests, which mostly wait on processes, run beside them.
+the threshold. The three run side by side, each main() in a forked copy of the test process (no
+new interpreter), started as soon as collection has selected this test, which runs last: the runs
+learn while the slow tier's other tests, which mostly wait on processes, run beside them.
 """
 
 import ctypes
