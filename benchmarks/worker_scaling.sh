@@ -7,6 +7,9 @@
 #     benchmarks/worker_scaling.sh [SECONDS] [WORKERS ...]   (default: 20 s; 1 2 4 8 16; PYTHON: the
 #                                                           interpreter, default python3)
 set -euo pipefail
+# A CPU measurement: on a machine with a GPU, CUDA's autograd threads in the parent (the FLOP
+# count's backward) would make the forked workers' backward fail.
+export CUDA_VISIBLE_DEVICES=""
 seconds=${1:-20}
 shift || true
 counts=("$@")
@@ -17,7 +20,7 @@ summary=""
 for n in "${counts[@]}"; do
     out=$("${PYTHON:-python3}" "$here/a3c_throughput.py" --env BreakoutNoFrameskip-v4 --envs-per-worker 16 \
         --precision auto --seconds "$seconds" --rounds 1 --no-baseline --eval-episodes 1 \
-        --num-workers "$n" 2>&1)
+        --num-workers "$n" 2>&1) || echo "a3c_throughput.py failed at $n workers (exit $?)"
     echo "$out"
     sps=$(echo "$out" | awk '$1 == "a3c_ff" && $2 == "16" {print $6}' | tail -1)
     summary+="$n ${sps:-?}"$'\n'
