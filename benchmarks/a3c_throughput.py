@@ -283,6 +283,9 @@ def run_script(
 
 
 def main() -> None:
+    # A CPU measurement. With a CUDA build and a GPU, the FLOP count's backward here would start
+    # autograd's device threads, and the forked workers' backward would then refuse to run.
+    os.environ["CUDA_VISIBLE_DEVICES"] = ""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("scripts", nargs="*", type=Path, help="scripts to compare with a3c_ff")
     parser.add_argument("--seconds", type=float, default=30.0, help="time per measurement")

@@ -7,9 +7,6 @@
 #     benchmarks/worker_scaling.sh [SECONDS] [WORKERS ...]   (default: 20 s; 1 2 4 8 16; PYTHON: the
 #                                                           interpreter, default python3)
 set -euo pipefail
-# A CPU measurement: on a machine with a GPU, CUDA's autograd threads in the parent (the FLOP
-# count's backward) would make the forked workers' backward fail.
-export CUDA_VISIBLE_DEVICES=""
 seconds=${1:-20}
 shift || true
 counts=("$@")
