@@ -87,7 +87,8 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     # the caption counts the table rows left off: every row, less the heads, less those drawn
     left_off = text.count("\n| ") - text.count("\n|---") - len(rows)
     assert f"*The {len(rows)} rows with an interval" in text
-    assert f"Left off, having no interval: {left_off} " in text
+    groups = text.split("Left off: ")[1].split("*")[0]  # "3 judged ... (...); 11 with ..."
+    assert sum(int(n) for n in re.findall(r"(?:^|; )(\d+) ", groups)) == left_off
 
 
 def test_every_claim_names_its_place_form_and_evidence_and_its_lines_exist_or_a_command():
@@ -242,3 +243,56 @@ def test_the_committed_extended_row_shows_both_looks(folder):
     assert claim["runs"] == 5 and claim["extend"]["runs"] == 15
     _, effect, _ = claims.evidence(claim)
     assert "(n = 15, 97.5% t); first look (n = 5, 95% t): " in effect
+
+
+def write_figure(folder, rows):
+    """An atari_figures results.csv: (game, line, seed, final_score, final_step) rows."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "results.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["figure", "game", "line", "seed", "final_score", "final_step"])
+        writer.writerows([folder.name, *row] for row in rows)
+
+
+def test_an_atari_row_pairs_its_lines_by_seed_at_the_full_steps(tmp_path, monkeypatch):
+    monkeypatch.setattr(claims, "ROOT", tmp_path)
+    atari = {"figure": "fig", "game": "Breakout", "steps": 2_000_000, "seeds": 3, "item": "c-x"}
+    claim = {"atari": atari, "baseline": "ff", "line": "lpq", "names": ["FF", "LPQ"],
+             "expect": "worse", "command": "run it", "ours": "one seed: 18.8 vs 25.1",
+             "verdict": "inconclusive: one seed"}  # fmt: skip
+    ff = {1: 30.0, 1001: 12.0, 2001: 21.0}
+    lpq = {1: 24.0, 1001: 7.0, 2001: 14.5}  # 6, 5 and 6.5 below FF, seed by seed
+    rows = [("Breakout", "ff", seed, score, 2_000_080) for seed, score in ff.items()]
+    rows += [("BeamRider", "lpq", seed, 900.0, 2_000_080) for seed in ff]  # another game
+    rows += [("Breakout", "lpq", 2001, 14.5, 2_000_080), ("Breakout", "lpq", 1, 24.0, 2_000_080)]
+    rows += [("Breakout", "lpq", 1001, 3.0, 640_000)]  # still running: its last evaluation
+    write_figure(tmp_path / "fig", rows)
+    # until every seed of both lines reached the steps: what the row said before, and the item
+    ours, effect, verdict = claims.evidence(claim)
+    assert (ours, effect) == ("one seed: 18.8 vs 25.1", "-")
+    assert verdict == "inconclusive: one seed; 3 seeds x 2M steps per line: campaign item c-x, " \
+        "not finished"  # fmt: skip
+    bare = {k: v for k, v in claim.items() if k not in ("ours", "verdict")}
+    assert claims.evidence(bare)[2] == "not run yet"
+    # every seed done: the final evaluations paired by seed, in the game's score
+    write_figure(tmp_path / "fig", rows[:-1] + [("Breakout", "lpq", 1001, 7.0, 2_000_080)])
+    ours, effect, verdict = claims.evidence(claim)
+    differences = np.array([lpq[seed] - ff[seed] for seed in (1, 1001, 2001)])
+    low, high = paired.interval(differences)
+    assert effect == f"{differences.mean():+.1f} [{low:+.1f}, {high:+.1f}]"
+    assert high < 0 and verdict == "reproduced"  # -5.8 [-7.7, -4.0]: consistently below
+    assert "LPQ 15.2 vs FF 21.0" in ours and "24.0 vs 30.0, 7.0 vs 12.0, 14.5 vs 21.0" in ours
+    assert claims.evidence({**claim, "expect": "better"})[2] == "contradicted"
+    # the forest plot, in Catch score, leaves it off; its caption says why
+    row = {**claim, "claim": "c", "where": "Fig 7.8", "form": "as run", "thesis": "t"}
+    data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}
+    assert claims.forest_points(data) == []
+    page = claims.render(data)
+    assert "Left off: 1 with an effect in a game's score" in page
+    # every run at random play (Breakout's 1.7, within 5% of human - random): no verdict
+    at_random = [("Breakout", line, seed, 1.7 + 0.1 * i, 2_000_080)
+                 for i, line in enumerate(["ff", "lpq"]) for seed in ff]  # fmt: skip
+    write_figure(tmp_path / "fig", at_random)
+    assert claims.evidence(claim)[2].startswith("no verdict: both lines at random play")
+    with pytest.raises(ValueError, match="better or worse"):
+        claims.evidence({**claim, "expect": "comparable"})

@@ -245,7 +245,9 @@ def render(games: dict[str, tuple[float, float]], lines: list[Line], links_from:
                 f"| {shown(*mean, 1)} | {normalised} |"
             )
     out += ["", "| game | random | human |", "|---|---:|---:|"]
-    out += [f"| {game} | {random:g} | {human:g} |" for game, (random, human) in games.items()]
+    used = {g.game for line in lines for g in line.games}  # the table may hold others
+    out += [f"| {game} | {random:g} | {human:g} |" for game, (random, human) in games.items()
+            if game in used]  # fmt: skip
     return "\n".join(out) + "\n"
 
 

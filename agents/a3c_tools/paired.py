@@ -203,8 +203,10 @@ class Paired:
         return f"{100 * self.confidence:g}% t"
 
     def shown(self) -> str:
-        """The effect with its interval, as the claims page shows it: +0.063 [-0.070, +0.240]."""
-        return f"{self.effect:+.3f} [{self.low:+.3f}, {self.high:+.3f}]"
+        """The effect with its interval, as the claims page shows it: +0.063 [-0.070, +0.240]
+        in Catch score, one decimal in an Atari game's (+12.4 [-3.1, +27.9])."""
+        f = ".3f" if self.env_id == CATCH else ".1f"
+        return f"{self.effect:+{f}} [{self.low:+{f}}, {self.high:+{f}}]"
 
     def at_random_play(self) -> str | None:
         """Why neither line learned, when every run of both is at random play; else None."""

@@ -10,8 +10,16 @@ design (the same learning rates and run seeds, so runs pair up by run_id): each 
 results.csv, committed under results/, gives one score per run (the mean of its final 5
 evaluations). The pairing, the effect with its t interval and the verdict are
 a3c_tools.paired's (its docstring gives the rules), which `a3c_tools.compare` uses too. A claim
-whose lines have not been run yet, or that has one run per line (the Atari figures), gets no
-interval: the row says what would decide it.
+whose lines have not been run yet gets no interval: the row says what would decide it.
+
+An Atari row compares two lines of one of the thesis's Atari figures on one game (the claim's
+`atari`: the figure's folder under results/atari_figures, the game, the steps and seeds of the
+campaign's item that runs them): each seed's final evaluation, read from the figure's
+results.csv that `a3c_tools.atari_figures --plot-only` writes, paired by seed, with the same t
+interval (95%, n - 1 degrees of freedom: at 3 seeds t = 4.30, so only a large, consistent
+effect is decided). Until both lines hold every seed at the full steps, the row keeps what it
+said before (`ours`, `verdict`) and names the campaign item. Its effect is in the game's score,
+so the forest plot, in Catch score, leaves it off (the caption counts it).
 
 Looks. A row rests on a fixed set of runs: its first look, runs 0..runs-1 of both lines (the
 claim's `runs`, FIRST_LOOK by default), whatever else its lines hold (a line shared with a row
@@ -46,6 +54,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from a3c_tools import run_main
+from a3c_tools.atari_figures import EVAL_EPISODES, SEED
 from a3c_tools.paired import MARGIN, SECOND_LOOK, Paired, pair, read_scores
 
 try:
@@ -115,13 +124,39 @@ class Looks:
         return f"{self.second.shown()} (n = {self.second.runs}, {self.second.level}){first}"
 
 
+def atari_scores(atari: dict, line: str) -> dict[str, float]:
+    """run_id -> the final evaluation of an Atari line's runs that reached the row's steps, from
+    its figure's results.csv (`a3c_tools.atari_figures ... --plot-only` writes it; run i has seed
+    SEED + 1000 i); a run still in progress is left out ({} before any is drawn)."""
+    table = ROOT / atari["figure"] / "results.csv"
+    if not table.is_file():
+        return {}
+    with open(table, newline="") as f:
+        return {
+            f"run-{(int(row['seed']) - SEED) // 1000:04d}": float(row["final_score"])
+            for row in csv.DictReader(f)
+            if row["game"] == atari["game"]
+            and row["line"] == line
+            and int(row["final_step"]) >= atari["steps"]
+        }
+
+
 def compared(claim: dict) -> Looks | None:
     """The claim's two lines paired by run_id, each look with its effect and interval; None for
     a claim judged without a pair of lines. A row rests on exactly its first look's runs (runs
     0..runs-1) until its extension's lines both hold `extend.runs`, whatever else its lines
-    (shared with other rows) hold."""
+    (shared with other rows) hold. An Atari row rests on its `seeds` seeds, paired by seed."""
     if "baseline" not in claim:
         return None
+    if "atari" in claim:
+        atari = claim["atari"]
+        if claim["expect"] not in ("better", "worse"):
+            raise ValueError(f"an Atari row is better or worse, not {claim['expect']!r}")
+        first = pair(
+            atari_scores(atari, claim["baseline"]), atari_scores(atari, claim["line"]),
+            env_id=f"{atari['game']}NoFrameskip-v4", run_ids=run_ids(atari["seeds"]),
+        )  # fmt: skip
+        return Looks(first, None, None)
     column = claim.get("score", "score")
     first_runs = claim.get("runs", FIRST_LOOK)
     first = pair(
@@ -149,6 +184,8 @@ def evidence(claim: dict) -> tuple[str, str, str]:
     column = claim.get("score", "score")
     looks = compared(claim)
     paired = looks.decisive
+    if "atari" in claim:
+        return atari_evidence(claim, paired)
     if paired is None:  # the command goes to the page's list of what is missing
         return "not run yet (the command is in the last section)", "-", "not run yet"
     names = claim.get("names", ["baseline", "line"])
@@ -164,6 +201,30 @@ def evidence(claim: dict) -> tuple[str, str, str]:
         f"({link(folders[0])}))"
     )
     return ours, looks.shown(), looks.verdict(claim["expect"])
+
+
+def atari_evidence(claim: dict, paired: Paired | None) -> tuple[str, str, str]:
+    """(our numbers, the effect with its interval, the verdict) of an Atari row: its seeds'
+    final evaluations paired by seed, or, until every seed of both lines is done, what the row
+    said before (`ours`, `verdict`) or "not run yet", and the campaign item that runs it."""
+    atari = claim["atari"]
+    budget = f"{atari['seeds']} seeds x {atari['steps'] / 1e6:g}M steps per line"
+    if paired is None:
+        todo = f"{budget}: campaign item {atari['item']}, not finished"
+        if "ours" in claim:
+            return claim["ours"], "-", f"{claim['verdict']}; {todo}"
+        return f"not run yet ({todo}; the command is in the last section)", "-", "not run yet"
+    names = claim["names"]
+    seeds = ", ".join(
+        f"{other:.1f} vs {base:.1f}" for other, base in zip(paired.other, paired.base, strict=True)
+    )
+    ours = (
+        f"{names[1]} {paired.other.mean():.1f} vs {names[0]} {paired.base.mean():.1f}: the "
+        f"final evaluation at {atari['steps'] / 1e6:g}M steps ({EVAL_EPISODES} episodes), the "
+        f"mean of {paired.runs} seeds paired by seed (seeds {SEED}, {SEED + 1000}, ...: {seeds}; "
+        f"[{atari['figure']}]({link(atari['figure'])}))"
+    )
+    return ours, paired.shown(), paired.verdict(claim["expect"])
 
 
 def link(folder: str) -> str:
@@ -237,7 +298,7 @@ def forest_points(claims: dict) -> list[Point]:
         for claim in section["claim"]:
             looks = compared(claim)
             paired = looks.decisive if looks is not None else None
-            if paired is None:
+            if paired is None or "atari" in claim:  # an Atari row's effect is in game score
                 continue
             verdict = head_of(looks.verdict(claim["expect"]))
             effect, low, high = (round(x, 3) for x in (paired.effect, paired.low, paired.high))
@@ -314,11 +375,17 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
     """The forest plot's caption: what it draws, and which rows it leaves off (those without an
     interval), by reason and section."""
     left_off: dict[str, Counter] = {}
-    titles = [section["title"] for section in claims["section"] for _ in section["claim"]]
-    for title, (_, effect, call) in zip(titles, rows, strict=True):
-        if effect == "-":
+    rows_of = [
+        (section["title"], claim) for section in claims["section"] for claim in section["claim"]
+    ]
+    for (title, claim), (_, effect, call) in zip(rows_of, rows, strict=True):
+        if "atari" in claim:
+            why = "with an effect in a game's score, not Catch's"
+        elif effect == "-":
             why = "not run yet" if call == "not run yet" else "judged without a pair of lines"
-            left_off.setdefault(why, Counter())[title] += 1
+        else:
+            continue
+        left_off.setdefault(why, Counter())[title] += 1
     drawn = len(rows) - sum(sum(counts.values()) for counts in left_off.values())
     text = (
         f"*The {drawn} rows with an interval: the paired mean effect (line - baseline, in Catch "
@@ -328,7 +395,7 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
         f"\u00b1{MARGIN})."
     )
     if left_off:
-        text += " Left off, having no interval: " + "; ".join(
+        text += " Left off: " + "; ".join(
             f"{sum(counts.values())} {why} ("
             + ", ".join(f"{count} in {title}" for title, count in counts.items()) + ")"
             for why, counts in left_off.items()
@@ -356,7 +423,8 @@ def render(claims: dict) -> str:
         for claim in section["claim"]:
             ours, effect, call = next(next_row)
             if call == "not run yet" and "command" in claim:
-                missing.setdefault(claim["command"], []).append(claim["where"])
+                game = f" ({claim['atari']['game']})" if "atari" in claim else ""
+                missing.setdefault(claim["command"], []).append(claim["where"] + game)
             head = head_of(call)
             rest = call[len(head) :]
             verdict_cell = f"**{head}**{rest}"
@@ -367,7 +435,7 @@ def render(claims: dict) -> str:
     out.append(claims["outro"].strip())
     if missing:  # the sentence that introduces the list only with a list to introduce
         out += ["", claims.get("missing", "The rows *not run yet*, and their commands:").strip()]
-        out += [""] + [f"- {', '.join(dict.fromkeys(wheres))}: `{command}`"
+        out += [""] + [f"- {'; '.join(dict.fromkeys(wheres))}: `{command}`"
                        for command, wheres in missing.items()]  # fmt: skip
     return "\n".join(out) + "\n"
 
