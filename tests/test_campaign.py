@@ -160,6 +160,34 @@ def test_repeat_runs_run_0_again_and_compares_its_score(line, tmp_path):
     assert ": identical" in (plan.parent / "PROGRESS.md").read_text()
 
 
+def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
+    """The figure's results.csv, which the claims page's Atari rows read, follows the runs."""
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "b"
+        title = "Pong"
+        kind = "atari"
+        figure = "fig6.10"
+        game = "Pong"
+        lines = ["vf1.0", "vf0.5"]
+        seeds = 3
+        steps = 3000000
+        num_workers = 2
+        out = "{tmp_path / "atari"}"
+        """,
+    )
+    ran = []
+    monkeypatch.setattr(campaign, "execute", lambda command: (ran.append(command[:2]), (0, ""))[1])
+    assert run_main(campaign.main, [str(plan)]).returncode == 1  # the stand-in ran no run
+    draw = ["-m", "a3c_tools.atari_figures"]
+    assert ran == [["-m", "a3c_tools.sweep"], draw, ["-m", "a3c_tools.sweep"], draw]
+    printed = run_main(campaign.main, [str(plan), "--dry-run"]).stdout.splitlines()
+    assert printed[-1] == f"python -m a3c_tools.atari_figures fig6.10 --out {tmp_path / 'atari'} "\
+        "--plot-only"  # fmt: skip
+
+
 @pytest.mark.parametrize(
     "body, message",
     [

@@ -350,7 +350,8 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
         ax.set_xlabel("steps (millions)")
         ax.set_ylabel("mean score per evaluation")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        if ax.get_legend_handles_labels()[0]:  # a game with no runs yet has no line to name
+            ax.legend(fontsize=7)
     fig.suptitle(
         f"Thesis Figure {figure.id.removeprefix('fig')}: mean over seeds +- one standard error "
         f"over {'/'.join(sorted(episodes))} episodes per evaluation (the thesis: 5 runs, "

@@ -18,7 +18,9 @@ Three kinds of item:
 - repeat: run 0 of a committed line again into a scratch folder and compare its score with the
   committed one (with one worker a run is exactly repeatable, so a difference means the code
   computes something else than when the line was made);
-- atari: atari_figures lines of one figure and game over `seeds` seeds of `steps` steps.
+- atari: atari_figures lines of one figure and game over `seeds` seeds of `steps` steps; after
+  each of its sweeps the figure is drawn again (`atari_figures FIG --plot-only`), which writes
+  the figure's results.csv that the claims page's Atari rows read.
 
 Each sweep invocation adds a row to SWEEPS.tsv beside the plan: its item, folder, start and end
 (UTC), wall time, the runs it held before and after, and the CPU model and cores that ran it.
@@ -75,6 +77,7 @@ class Item:
     title: str
     sweeps: list[Sweep]
     cpu_hours_per_run: float | None
+    draw: list[str] | None = None  # an atari item's figure, drawn after each of its sweeps
 
 
 def read_rows(out: Path) -> list[dict]:
@@ -149,7 +152,11 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
     if not sweeps:
         raise DataError(f"{where} has no sweep")
     per_run = entry.get("cpu_hours_per_run")
-    return Item(item_id, kind, title, sweeps, None if per_run is None else float(per_run))
+    draw = None
+    if kind == "atari":  # the figure's results.csv is what the claims page's Atari rows read
+        draw = ["-m", "a3c_tools.atari_figures", entry["figure"], "--out", entry["out"],
+                "--plot-only"]  # fmt: skip
+    return Item(item_id, kind, title, sweeps, None if per_run is None else float(per_run), draw)
 
 
 def load_plan(plan: Path) -> list[Item]:
@@ -279,6 +286,8 @@ def main(argv: list[str] | None = None) -> int:
         for item in items:
             for sweep in item.sweeps:
                 print(shlex.join(["python", *sweep.command]))
+            if item.draw is not None:
+                print(shlex.join(["python", *item.draw]))
         return 0
     if options.status:
         write_progress(items, options.plan)
@@ -298,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
             if code in (2, 130):
                 return code
             failed |= code != 0
+            if item.draw is not None:
+                failed |= execute(item.draw)[0] != 0
     finished = write_progress(items, options.plan)
     print((options.plan.parent / "PROGRESS.md").read_text(), end="")
     return 1 if failed else 0 if finished else 1
