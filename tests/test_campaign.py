@@ -229,3 +229,17 @@ def test_the_committed_plan_extends_each_line_with_its_own_configuration():
     atari = [s for item in items if item.kind == "atari" for s in item.sweeps]
     assert {shlex.join(s.command[:2]) for s in atari} == {"-m a3c_tools.sweep"}
     assert all(s.runs == 3 for s in atari)
+
+
+def test_an_items_wall_time_counts_sweeps_side_by_side_once(tmp_path):
+    log = tmp_path / "SWEEPS.tsv"
+    header = "item\tout\tstarted_utc\tended_utc\twall_s\truns_before\truns_after\tcpu\tcores\n"
+    spans = [("c", "10:00:00", "10:30:00", "X", 16), ("c", "10:00:00", "10:30:00", "X", 16),
+             ("c", "10:15:00", "11:00:00", "Y", 2), ("c", "12:00:00", "12:30:00", "Y", 2),
+             ("a", "09:00:00", "09:06:00", "Y", 2)]  # fmt: skip
+    rows = [f"{i}\tout\t2026-11-26 {a}\t2026-11-26 {b}\t0\t0\t0\t{cpu}\t{n}\n"
+            for i, a, b, cpu, n in spans]  # fmt: skip
+    log.write_text(header + "".join(rows))
+    clocks = campaign.item_clocks(log)
+    assert clocks["c"] == (1.5, ["X (16 cores)", "Y (2 cores)"])  # 10:00-11:00 and 12:00-12:30
+    assert clocks["a"] == (0.1, ["Y (2 cores)"])

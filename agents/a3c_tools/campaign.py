@@ -36,6 +36,7 @@ Exit codes: 0 when the plan is done, 1 when a sweep failed, 2 for a bad plan (no
 from __future__ import annotations
 
 import argparse
+import calendar
 import csv
 import json
 import os
@@ -171,12 +172,38 @@ def load_plan(plan: Path) -> list[Item]:
     return items
 
 
-def progress(items: list[Item]) -> tuple[str, bool]:
-    """The progress table (markdown) and whether every sweep of the plan is done."""
-    lines = ["| item | runs done of plan | CPU-hours spent | CPU-hours left (est.) |"]
-    lines.append("|---|---|---|---|")
+def item_clocks(log: Path) -> dict[str, tuple[float, list[str]]]:
+    """item id -> (its wall time in hours, the CPUs that ran it), from SWEEPS.tsv: the wall time
+    is the union of its sweep invocations' spans (sweeps run side by side count once)."""
+    spans: dict[str, list[tuple[float, float]]] = {}
+    cpus: dict[str, list[str]] = {}
+    if log.is_file():
+        with log.open(newline="") as f:
+            for row in csv.DictReader(f, delimiter="\t"):
+                start, end = (calendar.timegm(time.strptime(row[k], "%Y-%m-%d %H:%M:%S"))
+                              for k in ("started_utc", "ended_utc"))  # fmt: skip
+                spans.setdefault(row["item"], []).append((start, end))
+                cpu = f"{row['cpu']} ({row['cores']} cores)"
+                if cpu not in cpus.setdefault(row["item"], []):
+                    cpus[row["item"]].append(cpu)
+    clocks = {}
+    for item, item_spans in spans.items():
+        total, reached = 0.0, float("-inf")
+        for start, end in sorted(item_spans):
+            total += max(0.0, end - max(start, reached))
+            reached = max(reached, end)
+        clocks[item] = (total / 3600, cpus[item])
+    return clocks
+
+
+def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
+    """The progress table (markdown) and whether every sweep of the plan is done; with `log`
+    (SWEEPS.tsv), each item's wall time and CPUs too."""
+    clocks = item_clocks(log) if log is not None else {}
+    lines = ["| item | runs done of plan | CPU-hours spent | CPU-hours left (est.) | wall time "
+             "(hours) | CPUs |", "|---|---|---|---|---|---|"]  # fmt: skip
     total_done = total_plan = 0
-    total_spent = total_left = 0.0
+    total_spent = total_left = total_wall = 0.0
     seen: set[Path] = set()
     for item in items:
         done = plan = 0
@@ -196,12 +223,15 @@ def progress(items: list[Item]) -> tuple[str, bool]:
             plan += max(sweep.runs - sweep.first_look, 0)
             spent += sum(cost[sweep.first_look :][: sweep.runs - sweep.first_look])
             left += per_run * max(sweep.runs - max(len(rows), sweep.first_look), 0)
-        lines.append(f"| {item.id}: {item.title} | {done} of {plan} | {spent:.1f} | {left:.1f} |")
+        wall, cpus = clocks.get(item.id, (0.0, []))
+        lines.append(f"| {item.id}: {item.title} | {done} of {plan} | {spent:.1f} | {left:.1f} "
+                     f"| {wall:.1f} | {'; '.join(cpus) or '-'} |")  # fmt: skip
+        total_wall += wall
         total_done, total_plan = total_done + done, total_plan + plan
         total_spent, total_left = total_spent + spent, total_left + left
     lines.append(
         f"| **all** | **{total_done} of {total_plan}** | **{total_spent:.1f}** | "
-        f"**{total_left:.1f}** |"
+        f"**{total_left:.1f}** | **{total_wall:.1f}** | |"
     )
     return "\n".join(lines) + "\n", total_done >= total_plan
 
@@ -224,7 +254,7 @@ def repeat_report(items: list[Item], plan: Path) -> str:
 
 
 def write_progress(items: list[Item], plan: Path) -> bool:
-    table, finished = progress(items)
+    table, finished = progress(items, plan.parent / "SWEEPS.tsv")
     shown = plan.relative_to(ROOT) if plan.is_relative_to(ROOT) else plan
     text = f"# Campaign progress ({plan.name})\n\nWritten by `python -m a3c_tools.campaign "
     text += f"{shown.as_posix()}` after each sweep.\n\n{table}"
