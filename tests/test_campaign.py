@@ -183,6 +183,15 @@ def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
     assert run_main(campaign.main, [str(plan)]).returncode == 1  # the stand-in ran no run
     draw = ["-m", "a3c_tools.atari_figures"]
     assert ran == [["-m", "a3c_tools.sweep"], draw, ["-m", "a3c_tools.sweep"], draw]
+    # every run done before this start (or brought from another machine): drawn once
+    for line in ("vf1.0", "vf0.5"):
+        folder = tmp_path / "atari" / "fig6.10" / "Pong" / line
+        folder.mkdir(parents=True)
+        (folder / "results.csv").write_text("run_id,status,wall_time_s,flags\n" + "".join(
+            f"run-{i:04d},ok,1,--num-workers 2\n" for i in range(3)))  # fmt: skip
+    ran.clear()
+    assert run_main(campaign.main, [str(plan)]).returncode == 0
+    assert ran == [draw]
     printed = run_main(campaign.main, [str(plan), "--dry-run"]).stdout.splitlines()
     assert printed[-1] == f"python -m a3c_tools.atari_figures fig6.10 --out {tmp_path / 'atari'} "\
         "--plot-only"  # fmt: skip

@@ -86,7 +86,7 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     assert len(set(claims.COLOURS.values())) == 4  # one colour to each verdict
     # the caption counts the table rows left off: every row, less the heads, less those drawn
     left_off = text.count("\n| ") - text.count("\n|---") - len(rows)
-    assert f"*The {len(rows)} rows with an interval" in text
+    assert f"*The {len(rows)} Catch rows with an interval" in text
     groups = text.split("Left off: ")[1].split("*")[0]  # "3 judged ... (...); 11 with ..."
     assert sum(int(n) for n in re.findall(r"(?:^|; )(\d+) ", groups)) == left_off
 
@@ -283,6 +283,9 @@ def test_an_atari_row_pairs_its_lines_by_seed_at_the_full_steps(tmp_path, monkey
     assert high < 0 and verdict == "reproduced"  # -5.8 [-7.7, -4.0]: consistently below
     assert "LPQ 15.2 vs FF 21.0" in ours and "24.0 vs 30.0, 7.0 vs 12.0, 14.5 vs 21.0" in ours
     assert claims.evidence({**claim, "expect": "better"})[2] == "contradicted"
+    # a row of 5 seeds is judged on 5, not on the first 3 done
+    five = {**claim, "atari": {**atari, "seeds": 5}}
+    assert claims.evidence(five)[1] == "-" and "5 seeds x 2M steps" in claims.evidence(five)[2]
     # the forest plot, in Catch score, leaves it off; its caption says why
     row = {**claim, "claim": "c", "where": "Fig 7.8", "form": "as run", "thesis": "t"}
     data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}

@@ -57,6 +57,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 KINDS = ("extend", "repeat", "atari")
+ALL = "**all**"  # the progress table's last row
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,8 @@ def load_plan(plan: Path) -> list[Item]:
 
 def item_clocks(log: Path) -> dict[str, tuple[float, list[str]]]:
     """item id -> (its wall time in hours, the CPUs that ran it), from SWEEPS.tsv: the wall time
-    is the union of its sweep invocations' spans (sweeps run side by side count once)."""
+    is the union of its sweep invocations' spans (sweeps run side by side count once); ALL's
+    is the union of every item's."""
     spans: dict[str, list[tuple[float, float]]] = {}
     cpus: dict[str, list[str]] = {}
     if log.is_file():
@@ -186,6 +188,8 @@ def item_clocks(log: Path) -> dict[str, tuple[float, list[str]]]:
                 cpu = f"{row['cpu']} ({row['cores']} cores)"
                 if cpu not in cpus.setdefault(row["item"], []):
                     cpus[row["item"]].append(cpu)
+    spans[ALL] = [span for item_spans in list(spans.values()) for span in item_spans]
+    cpus[ALL] = list(dict.fromkeys(cpu for item_cpus in cpus.values() for cpu in item_cpus))
     clocks = {}
     for item, item_spans in spans.items():
         total, reached = 0.0, float("-inf")
@@ -203,7 +207,7 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
     lines = ["| item | runs done of plan | CPU-hours spent | CPU-hours left (est.) | wall time "
              "(hours) | CPUs |", "|---|---|---|---|---|---|"]  # fmt: skip
     total_done = total_plan = 0
-    total_spent = total_left = total_wall = 0.0
+    total_spent = total_left = 0.0
     seen: set[Path] = set()
     for item in items:
         done = plan = 0
@@ -226,12 +230,11 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
         wall, cpus = clocks.get(item.id, (0.0, []))
         lines.append(f"| {item.id}: {item.title} | {done} of {plan} | {spent:.1f} | {left:.1f} "
                      f"| {wall:.1f} | {'; '.join(cpus) or '-'} |")  # fmt: skip
-        total_wall += wall
         total_done, total_plan = total_done + done, total_plan + plan
         total_spent, total_left = total_spent + spent, total_left + left
     lines.append(
-        f"| **all** | **{total_done} of {total_plan}** | **{total_spent:.1f}** | "
-        f"**{total_left:.1f}** | **{total_wall:.1f}** | |"
+        f"| {ALL} | **{total_done} of {total_plan}** | **{total_spent:.1f}** | "
+        f"**{total_left:.1f}** | **{clocks.get(ALL, (0.0,))[0]:.1f}** | |"
     )
     return "\n".join(lines) + "\n", total_done >= total_plan
 
@@ -325,10 +328,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     failed = False
     for item in items:
+        ran = False
         for sweep in item.sweeps:
             before = len(read_rows(sweep.out))
             if before >= sweep.runs:
                 continue
+            ran = True
             print(f"== {item.id}: {sweep.out}: to {sweep.runs} runs", flush=True)
             started = time.time()
             code, _ = execute(sweep.command)
@@ -339,6 +344,10 @@ def main(argv: list[str] | None = None) -> int:
             failed |= code != 0
             if item.draw is not None:
                 failed |= execute(item.draw)[0] != 0
+        # an item whose runs were all done before (or came back from another machine) is drawn
+        # once a start, so that its figure's results.csv is never left behind its runs
+        if item.draw is not None and not ran and any(read_rows(s.out) for s in item.sweeps):
+            failed |= execute(item.draw)[0] != 0
     finished = write_progress(items, options.plan)
     print((options.plan.parent / "PROGRESS.md").read_text(), end="")
     return 1 if failed else 0 if finished else 1

@@ -156,6 +156,8 @@ def compared(claim: dict) -> Looks | None:
             atari_scores(atari, claim["baseline"]), atari_scores(atari, claim["line"]),
             env_id=f"{atari['game']}NoFrameskip-v4", run_ids=run_ids(atari["seeds"]),
         )  # fmt: skip
+        if first is not None and first.runs < atari["seeds"]:  # judged on every seed or none
+            first = None
         return Looks(first, None, None)
     column = claim.get("score", "score")
     first_runs = claim.get("runs", FIRST_LOOK)
@@ -388,9 +390,9 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
         left_off.setdefault(why, Counter())[title] += 1
     drawn = len(rows) - sum(sum(counts.values()) for counts in left_off.values())
     text = (
-        f"*The {drawn} rows with an interval: the paired mean effect (line - baseline, in Catch "
-        f"score) with its t interval (95%; {100 * SECOND_LOOK:g}% at an extended row's second "
-        "look), coloured by verdict; a label reads as the claim (line > "
+        f"*The {drawn} Catch rows with an interval: the paired mean effect (line - baseline, "
+        f"in Catch score) with its t interval (95%; {100 * SECOND_LOOK:g}% at an extended "
+        "row's second look), coloured by verdict; a label reads as the claim (line > "
         f"baseline for better, < for worse, \u2248 for comparable: within the band of "
         f"\u00b1{MARGIN})."
     )
@@ -422,7 +424,7 @@ def render(claims: dict) -> str:
         ]
         for claim in section["claim"]:
             ours, effect, call = next(next_row)
-            if call == "not run yet" and "command" in claim:
+            if head_of(call) == "not run yet" and "command" in claim:
                 game = f" ({claim['atari']['game']})" if "atari" in claim else ""
                 missing.setdefault(claim["command"], []).append(claim["where"] + game)
             head = head_of(call)

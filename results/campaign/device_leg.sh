@@ -10,8 +10,10 @@
 # matched whole; default: item d's LWS and WW on Breakout and item c2's text LPQ (6 runs: 12
 # workers, and 6 packed folders of about 10 MB each, under the 64 MiB that comes back). Pick
 # lines none of whose runs 0-1 exist here: the machine starts without this machine's run
-# folders (they are ignored files), so a line begun here would begin again there. Unpack the
-# folders at the repository root with `tar -xzkf FILE` (-k: never over a file that is here).
+# folders (they are ignored files), so a line begun here would begin again there. Unpack at the
+# repository root only the folders that are not here (a run folder is one run's, whole):
+#     for f in OUT/*.tar.gz; do d=$(tar -tzf "$f" | head -1 | cut -d/ -f1-7)
+#         if [ -e "$d" ]; then echo "kept $d, not $f"; else tar -xzf "$f"; fi; done
 set -uo pipefail
 shopt -s nullglob
 seconds=$1
@@ -36,6 +38,7 @@ for _ in $(seq 120); do
     sleep 1
 done
 for d in results/atari_figures/*/*/*/runs/run-*; do
+    [[ $d =~ ^results/atari_figures/($lines)/runs/ ]] || continue  # only the lines run here
     name=$(echo "${d#results/atari_figures/}" | sed 's|/runs/|-|; s|/|-|g')  # FIG-GAME-LINE-run-i
     tar -czf "$out/$name.tar.gz" "$d"
     tail -n 2 "$d/stdout.log"
