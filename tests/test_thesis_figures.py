@@ -381,7 +381,7 @@ def test_samples_come_after_the_learning_rate(tmp_path):
     samples = [command[i + 1] for i in range(4, split) if command[i] == "--sample"]
     assert samples == ["learning-rate=loguniform:1e-05:0.01", "grad-clip=loguniform:0.5:40"]
     config = {"samples": samples, "fixed_flags": command[split + 1 :], "seed": 1}
-    runs = sweep.plan_runs({**config, "total_timesteps": 250000}, 8)
+    runs = sweep.plan_runs({**config, "total_timesteps": 250000}, len(first))  # 8, or extended
     assert {run.run_id: (run.sampled["learning-rate"], str(run.seed)) for run in runs} == first
 
 
