@@ -1,47 +1,60 @@
 #!/usr/bin/env bash
-# The campaign's leg on a lent 16-core machine: runs 0 and 1 of some Atari lines of the plan (the
-# plan's own sweep commands with --runs 2), side by side, for SECONDS, then stopped with SIGTERM
-# (the sweeps pass SIGINT on to their runs, which save their checkpoints); each run folder is
-# packed into OUT as one .tar.gz, the sweeps' output into OUT/device_leg.log.
+# The campaign's leg on a lent 16-core machine: some runs of some Atari lines of the plan (each
+# run's command exactly as the plan's sweep would launch it: `sweep ... --dry-run`), side by side,
+# for SECONDS, then stopped with SIGINT (the scripts save their checkpoints); each run folder is
+# packed into OUT as one .tar.gz, the runs' last lines into OUT/device_leg.log.
 #
-#     results/campaign/device_leg.sh SECONDS OUT [LINES]     (PYTHON: the interpreter, python3)
+#     results/campaign/device_leg.sh SECONDS OUT [LINES] [RUNS]   (PYTHON: the interpreter)
 #
 # LINES: an extended regular expression of the lines' folders under results/atari_figures/,
-# matched whole; default: item d's LWS and WW on Breakout and item c2's text LPQ (6 runs: 12
-# workers, and 6 packed folders of about 10 MB each, under the 64 MiB that comes back). Pick
-# lines none of whose runs 0-1 exist here: the machine starts without this machine's run
-# folders (they are ignored files), so a line begun here would begin again there. Unpack at the
-# repository root only the folders that are not here (a run folder is one run's, whole):
+# matched whole; RUNS: the run indices. Default: run 2 (the third seed) of item c's and item d's
+# lines and item c2's LPQ on Breakout, whose runs 0-1 two earlier legs began. Six runs fit: 12
+# workers, and 6 packed folders of 5-11 MB each, under the 64 MiB that comes back. Pick runs
+# none of which exist here: the machine starts without this machine's run folders (they are
+# ignored files), so a run begun here would begin again there. The campaign's sweeps resume the
+# runs unpacked here from their checkpoints (a run's folder is all a sweep needs of it). Unpack
+# at the repository root only the folders that are not here (a run folder is one run's, whole):
 #     for f in OUT/*.tar.gz; do d=$(tar -tzf "$f" | head -1 | cut -d/ -f1-7)
 #         if [ -e "$d" ]; then echo "kept $d, not $f"; else tar -xzf "$f"; fi; done
 set -uo pipefail
 shopt -s nullglob
 seconds=$1
 out=$2
-lines=${3:-'fig6.9/Breakout/(lws|ww)|fig7.8/Breakout/lpq'}
-mapfile -t commands < <("${PYTHON:-python3}" -m a3c_tools.campaign results/campaign/plan.toml --dry-run |
-    grep -E "^python -m a3c_tools.sweep .* --out results/atari_figures/($lines) " |
-    sed 's/ --runs 3 / --runs 2 /' | awk '!seen[$0]++')
-[ ${#commands[@]} -gt 0 ] || { echo "no sweep of the plan matches $lines"; exit 1; }
+lines=${3:-'fig6.9/Breakout/(ff|lws|ww)|fig7.8/Breakout/(lpq_fig78|glpq_fig78|lpq)'}
+runs=${4:-2}
+python=${PYTHON:-python3}
+runs_re=$(printf '%04d|' $runs)
+mapfile -t sweeps < <("$python" -m a3c_tools.campaign results/campaign/plan.toml --dry-run |
+    grep -E "^python -m a3c_tools.sweep .* --out results/atari_figures/($lines) " | awk '!seen[$0]++')
+commands=()
+for s in "${sweeps[@]}"; do
+    s=${s/ -- / --dry-run -- }  # the sweep's flags end at the first ` -- `
+    mapfile -t -O ${#commands[@]} commands < <(eval "$python ${s#python }" |
+        grep -E "^python agents/.* --run-dir results/atari_figures/.*/runs/run-(${runs_re%|})$")
+done
+[ ${#commands[@]} -gt 0 ] || { echo "no run of the plan matches $lines, runs $runs"; exit 1; }
 pids=()
+dirs=()
 for c in "${commands[@]}"; do
     echo "$c"
-    eval "exec ${PYTHON:-python3} ${c#python }" > "/tmp/sweep-${#pids[@]}.log" 2>&1 &
+    dir=${c##* --run-dir }
+    [ -e "$dir" ] && { echo "$dir exists here: not run"; continue; }
+    dirs+=("$dir")
+    mkdir -p "$dir"
+    eval "exec setsid $python ${c#python }" >> "$dir/stdout.log" 2>> "$dir/stderr.log" &
     pids+=($!)
 done
 sleep "$seconds"
-kill -TERM "${pids[@]}" 2>/dev/null
+for p in "${pids[@]}"; do kill -INT -- "-$p" 2>/dev/null; done  # each run's process group (setsid)
 for _ in $(seq 120); do
     alive=0
     for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && alive=1; done
     [ $alive -eq 0 ] && break
     sleep 1
 done
-for d in results/atari_figures/*/*/*/runs/run-*; do
-    [[ $d =~ ^results/atari_figures/($lines)/runs/ ]] || continue  # only the lines run here
+for d in "${dirs[@]}"; do
     name=$(echo "${d#results/atari_figures/}" | sed 's|/runs/|-|; s|/|-|g')  # FIG-GAME-LINE-run-i
     tar -czf "$out/$name.tar.gz" "$d"
-    tail -n 2 "$d/stdout.log"
+    tail -n 2 "$d/stdout.log" | tee -a "$out/device_leg.log"
 done
-cat /tmp/sweep-*.log > "$out/device_leg.log"
 ls -la "$out"
