@@ -7,9 +7,8 @@
 #     results/campaign/device_leg.sh SECONDS OUT [LINES] [RUNS]   (PYTHON: the interpreter)
 #
 # LINES: an extended regular expression of the lines' folders under results/atari_figures/,
-# matched whole; RUNS: the run indices. Default: run 2 (the third seed) of item c's and item d's
-# lines and item c2's LPQ on Breakout, whose runs 0-1 two earlier legs began. Six runs fit: 12
-# workers, and 6 packed folders of 5-11 MB each, under the 64 MiB that comes back. Pick runs
+# matched whole; RUNS: the run indices. Default: runs 0-2 of item b's two lines on Pong (item
+# c's, d's and c2's LPQ on Breakout began in three earlier legs). Six runs fit: 12 workers, and 6 packed folders of 5-11 MB each, under the 64 MiB that comes back. Pick runs
 # none of which exist here: the machine starts without this machine's run folders (they are
 # ignored files), so a run begun here would begin again there. The campaign's sweeps resume the
 # runs unpacked here from their checkpoints (a run's folder is all a sweep needs of it). Unpack
@@ -20,8 +19,8 @@ set -uo pipefail
 shopt -s nullglob
 seconds=$1
 out=$2
-lines=${3:-'fig6.9/Breakout/(ff|lws|ww)|fig7.8/Breakout/(lpq_fig78|glpq_fig78|lpq)'}
-runs=${4:-2}
+lines=${3:-'fig6.10/Pong/vf(1[.]0|0[.]5)'}
+runs=${4:-0 1 2}
 python=${PYTHON:-python3}
 runs_re=$(printf '%04d|' $runs)
 mapfile -t sweeps < <("$python" -m a3c_tools.campaign results/campaign/plan.toml --dry-run |
