@@ -7,12 +7,16 @@ at once; the committed plan is checked against the committed lines it extends.
 
 import csv
 import json
+import os
 import shlex
+import signal
 import textwrap
+import threading
+import time
 from pathlib import Path
 
 import pytest
-from a3c_tools import campaign, sweep
+from a3c_tools import campaign, figure_sweeps, sweep
 from conftest import ROOT, run_main
 
 PLAN = ROOT / "results" / "campaign" / "plan.toml"
@@ -252,3 +256,71 @@ def test_an_items_wall_time_counts_sweeps_side_by_side_once(tmp_path):
     clocks = campaign.item_clocks(log)
     assert clocks["c"] == (1.5, ["X (16 cores)", "Y (2 cores)"])  # 10:00-11:00 and 12:00-12:30
     assert clocks["a"] == (0.1, ["Y (2 cores)"])
+
+
+def test_a_running_sweeps_row_is_written_at_its_start_and_kept_current(line, tmp_path, monkeypatch):
+    """A campaign killed outright (a session's end) leaves its last sweep's span in SWEEPS.tsv:
+    the row is there from the sweep's start, its end kept current while it runs, and one row
+    per sweep when it ends."""
+    agent = line.parent / "agents" / "a3c_ff.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "a1"
+        title = "the line to 3 runs"
+        kind = "extend"
+        runs = 3
+        lines = [{{ script = "{agent}", out = "{line}", first_look = 2 }}]
+        """,
+    )
+    log = plan.parent / "SWEEPS.tsv"
+    seen = []
+
+    def slow_sweep(command):
+        for _ in range(2):  # the table as a killed campaign would leave it, twice, 1.2 s apart
+            with log.open(newline="") as f:
+                seen.append(list(csv.DictReader(f, delimiter="\t")))
+            time.sleep(1.2)
+        return 0, ""
+
+    monkeypatch.setattr(campaign, "LOG_EVERY_S", 0.05)
+    monkeypatch.setattr(campaign, "execute", slow_sweep)
+    run_main(campaign.main, [str(plan)])
+    (first,), (second,) = seen
+    assert (first["item"], first["out"], first["runs_before"]) == ("a1", str(line), "2")
+    assert second["started_utc"] == first["started_utc"]
+    assert second["ended_utc"] > first["ended_utc"] and float(second["wall_s"]) >= 1
+    with log.open(newline="") as f:
+        (final,) = list(csv.DictReader(f, delimiter="\t"))
+    assert final["started_utc"] == first["started_utc"] and float(final["wall_s"]) >= 2
+
+
+def test_a_sigterm_while_a_tool_runs_is_passed_on_to_it(tmp_path):
+    """SIGTERM to the campaign (or a figure tool) reaches the sweep it runs, which stops its
+    runs cleanly; the caller waits for it instead of dying and leaving it running."""
+    ready = tmp_path / "ready"
+    tool = textwrap.dedent(
+        f"""
+        import signal, sys, time
+        def stop(*_):
+            print("stopped cleanly", flush=True)
+            sys.exit(130)
+        signal.signal(signal.SIGTERM, stop)
+        open({str(ready)!r}, "w").close()
+        time.sleep(30)
+        """
+    )
+
+    def terminate_when_ready():
+        deadline = time.time() + 20
+        while not ready.exists() and time.time() < deadline:
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    before = signal.getsignal(signal.SIGTERM)
+    threading.Thread(target=terminate_when_ready, daemon=True).start()
+    started = time.time()
+    code, stdout = figure_sweeps.execute(["-c", tool], capture=True)
+    assert (code, stdout) == (130, "stopped cleanly\n")
+    assert time.time() - started < 20 and signal.getsignal(signal.SIGTERM) == before

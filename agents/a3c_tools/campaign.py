@@ -22,8 +22,11 @@ Three kinds of item:
   each of its sweeps the figure is drawn again (`atari_figures FIG --plot-only`), which writes
   the figure's results.csv that the claims page's Atari rows read.
 
-Each sweep invocation adds a row to SWEEPS.tsv beside the plan: its item, folder, start and end
-(UTC), wall time, the runs it held before and after, and the CPU model and cores that ran it.
+Each sweep invocation has a row in SWEEPS.tsv beside the plan: its item, folder, start and end
+(UTC), wall time, the runs it held before and after, and the CPU model and cores that ran it;
+the row is written when the sweep starts and kept current while it runs, so a campaign killed
+outright loses at most a minute of it. A SIGTERM while a sweep runs stops it cleanly (its runs
+checkpoint) and the campaign with it (exit 130).
 After each sweep, and with --status, the progress (runs done of the plan, CPU-hours spent on
 the plan's new runs and an estimate of those left) is written to PROGRESS.md beside the plan.
 CPU-hours are wall time x workers, from the sweeps' results.csv; a run not yet made is
@@ -43,6 +46,7 @@ import os
 import platform
 import shlex
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +62,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 KINDS = ("extend", "repeat", "atari")
 ALL = "**all**"  # the progress table's last row
+LOG_EVERY_S = 60.0  # how often a running sweep's SWEEPS.tsv row is brought up to date
 
 
 @dataclass(frozen=True)
@@ -281,18 +286,50 @@ def cpu_model() -> str:
 
 
 def log_sweep(plan: Path, item: Item, sweep: Sweep, before: int, started: float) -> None:
-    """Append to SWEEPS.tsv beside the plan what one sweep invocation did: when, on which CPU
-    (and how many cores), and the runs its folder held before and after."""
+    """Write to SWEEPS.tsv beside the plan what one sweep invocation did so far: when, on which
+    CPU (and how many cores), and the runs its folder held before and now. Its row (the same
+    item, folder and start) is replaced if there, else added."""
     path = plan.parent / "SWEEPS.tsv"
     stamp = "%Y-%m-%d %H:%M:%S"
     row = [item.id, str(sweep.out), time.strftime(stamp, time.gmtime(started)),
            time.strftime(stamp, time.gmtime()), f"{time.time() - started:.0f}", str(before),
            str(len(read_rows(sweep.out))), cpu_model(), str(os.cpu_count())]  # fmt: skip
-    header = "item\tout\tstarted_utc\tended_utc\twall_s\truns_before\truns_after\tcpu\tcores\n"
-    with path.open("a") as f:
-        if f.tell() == 0:
-            f.write(header)
-        f.write("\t".join(row) + "\n")
+    lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
+    if not lines:
+        lines = ["item\tout\tstarted_utc\tended_utc\twall_s\truns_before\truns_after\tcpu\tcores\n"]
+    key = row[:3]
+    mine = [i for i, line in enumerate(lines) if line.rstrip("\n").split("\t")[:3] == key]
+    if mine:
+        lines[mine[-1]] = "\t".join(row) + "\n"
+    else:
+        lines.append("\t".join(row) + "\n")
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text("".join(lines))
+    os.replace(partial, path)  # a killed campaign leaves the old table or the new, whole
+
+
+def run_logged(plan: Path, item: Item, sweep: Sweep) -> int:
+    """Run one sweep of the plan, its SWEEPS.tsv row written at its start and kept current
+    every LOG_EVERY_S while it runs, so that a campaign killed outright (a session's end)
+    leaves its last sweep's span in the table all the same. The sweep's exit code."""
+    before = len(read_rows(sweep.out))
+    started = time.time()
+    log_sweep(plan, item, sweep, before, started)
+    done = threading.Event()
+
+    def keep_current() -> None:
+        while not done.wait(LOG_EVERY_S):
+            log_sweep(plan, item, sweep, before, started)
+
+    logger = threading.Thread(target=keep_current, daemon=True)
+    logger.start()
+    try:
+        code, _ = execute(sweep.command)
+    finally:
+        done.set()
+        logger.join()
+        log_sweep(plan, item, sweep, before, started)
+    return code
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -335,9 +372,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             ran = True
             print(f"== {item.id}: {sweep.out}: to {sweep.runs} runs", flush=True)
-            started = time.time()
-            code, _ = execute(sweep.command)
-            log_sweep(options.plan, item, sweep, before, started)
+            code = run_logged(options.plan, item, sweep)
             write_progress(items, options.plan)
             if code in (2, 130):
                 return code

@@ -15,8 +15,10 @@ from __future__ import annotations
 import argparse
 import os
 import shlex
+import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -150,20 +152,30 @@ def figure_id(text: str, ids: Iterable[str]) -> str | None:
 # ------------------------------------------------------------------------------------------------
 def execute(command: list[str], capture: bool = False) -> tuple[int, str]:
     """Run a tool of this package with this interpreter: its exit code, and its stdout when
-    captured (echoed all the same). A Ctrl-C reaches the tool too (same process group): this
-    waits for it to stop its runs cleanly (sweep.py exits 130) rather than killing it."""
-    if capture:
-        result = subprocess.run([sys.executable, *command], stdout=subprocess.PIPE, text=True)
-        sys.stdout.write(result.stdout)
-        sys.stdout.flush()
-        return result.returncode, result.stdout
+    captured (echoed all the same). A Ctrl-C reaches the tool too (same process group), and a
+    SIGTERM to this process is passed on to it: either way this waits for it to stop its runs
+    cleanly (sweep.py exits 130) rather than dying and leaving it behind."""
     sys.stdout.flush()
-    process = subprocess.Popen([sys.executable, *command])
-    while True:
-        try:
-            return process.wait(), ""
-        except KeyboardInterrupt:
-            continue
+    process = subprocess.Popen(
+        [sys.executable, *command], stdout=subprocess.PIPE if capture else None, text=True
+    )
+    passing_on = threading.current_thread() is threading.main_thread()  # signal's rule
+    if passing_on:
+        previous = signal.signal(signal.SIGTERM, lambda *_: process.send_signal(signal.SIGTERM))
+    try:
+        while True:
+            try:
+                stdout = process.communicate()[0]  # None when not captured
+                break
+            except KeyboardInterrupt:
+                continue
+    finally:
+        if passing_on:
+            signal.signal(signal.SIGTERM, previous)
+    if capture:
+        sys.stdout.write(stdout)
+        sys.stdout.flush()
+    return process.returncode, stdout or ""
 
 
 @dataclass(frozen=True)
