@@ -152,6 +152,13 @@ def test_the_page_opens_with_a_tally_of_its_verdicts():
         assert f"{heads.count(head)} {head}" in page.split("**At a glance**")[1].split("\n")[0]
 
 
+def test_the_readme_quotes_the_claims_pages_tally():
+    page = (ROOT / "docs" / "claims.md").read_text()
+    counts = page.split("**At a glance**: ")[1].split("\n")[0].rstrip(".")
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    assert f"({counts})" in readme, f"README.md: quote the claims page's tally, ({counts})"
+
+
 def write_line(folder, values, statuses=None):
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "results.csv", "w", newline="") as f:

@@ -418,8 +418,7 @@ def render(claims: dict) -> str:
         if "text" in section:
             out += [section["text"].strip(), ""]
         out += [
-            "| claim | where | form | thesis's evidence | ours | effect [95% t interval] "
-            "| verdict |",
+            "| claim | where | form | thesis's evidence | ours | effect [t interval] | verdict |",
             "|---|---|---|---|---|---|---|",
         ]
         for claim in section["claim"]:

@@ -2,20 +2,22 @@
 # The campaign's leg on a lent 16-core machine: some runs of some Atari lines of the plan (each
 # run's command exactly as the plan's sweep would launch it: `sweep ... --dry-run`), side by side,
 # for SECONDS, then stopped with SIGINT (the scripts save their checkpoints); each run folder is
-# packed into OUT as one .tar.gz, the runs' last lines into OUT/device_leg.log.
+# packed into OUT as one .tar.gz, the runs' last lines into OUT/device_leg.log. A SIGTERM or
+# Ctrl-C to this script stops the runs and packs them at once.
 #
 #     results/campaign/device_leg.sh SECONDS OUT [LINES] [RUNS]   (PYTHON: the interpreter)
 #
 # LINES: an extended regular expression of the lines' folders under results/atari_figures/,
 # matched whole; RUNS: the run indices. Default: runs 0-2 of item b's two lines on Pong (item
-# c's, d's and c2's LPQ on Breakout began in three earlier legs). Six runs fit: 12 workers, and 6 packed folders of 5-11 MB each, under the 64 MiB that comes back. Pick runs
-# none of which exist here: the machine starts without this machine's run folders (they are
-# ignored files), so a run begun here would begin again there. The campaign's sweeps resume the
-# runs unpacked here from their checkpoints (a run's folder is all a sweep needs of it). Unpack
-# at the repository root only the folders that are not here (a run folder is one run's, whole):
+# c's, d's and c2's LPQ on Breakout began in three earlier legs). Six runs fit: 12 workers, and 6
+# packed folders of 5-11 MB each, under the 64 MiB that comes back. Pick runs none of which exist
+# here: the machine starts without this machine's run folders (they are ignored files), so a run
+# begun here would begin again there. The campaign's sweeps resume the runs unpacked here from
+# their checkpoints (a run's folder is all a sweep needs of it). Unpack at the repository root
+# only the folders that are not here (a run folder is one run's, whole):
 #     for f in OUT/*.tar.gz; do d=$(tar -tzf "$f" | head -1 | cut -d/ -f1-7)
 #         if [ -e "$d" ]; then echo "kept $d, not $f"; else tar -xzf "$f"; fi; done
-set -uo pipefail
+set -uo pipefail +m  # +m: no job control, so `exec setsid` below does not fork and $! is the run
 shopt -s nullglob
 seconds=$1
 out=$2
@@ -23,17 +25,44 @@ lines=${3:-'fig6.10/Pong/vf(1[.]0|0[.]5)'}
 runs=${4:-0 1 2}
 python=${PYTHON:-python3}
 runs_re=$(printf '%04d|' $runs)
-mapfile -t sweeps < <("$python" -m a3c_tools.campaign results/campaign/plan.toml --dry-run |
-    grep -E "^python -m a3c_tools.sweep .* --out results/atari_figures/($lines) " | awk '!seen[$0]++')
+plan=$("$python" -m a3c_tools.campaign results/campaign/plan.toml --dry-run) ||
+    { echo "the plan's dry run failed (above)"; exit 1; }
+pattern="^python -m a3c_tools.sweep .* --out results/atari_figures/($lines) "
+mapfile -t sweeps < <(grep -E "$pattern" <<< "$plan" | awk '!seen[$0]++')
 commands=()
 for s in "${sweeps[@]}"; do
-    s=${s/ -- / --dry-run -- }  # the sweep's flags end at the first ` -- `
-    mapfile -t -O ${#commands[@]} commands < <(eval "$python ${s#python }" |
-        grep -E "^python agents/.* --run-dir results/atari_figures/.*/runs/run-(${runs_re%|})$")
+    [[ $s == *" -- "* ]] && s=${s/ -- / --dry-run -- } || s="$s --dry-run"  # before the runs' flags
+    listed=$(eval "$python ${s#python }") || { echo "the sweep's dry run failed: $s"; exit 1; }
+    pattern="^python agents/.* --run-dir results/atari_figures/.*/runs/run-(${runs_re%|})$"
+    mapfile -t -O ${#commands[@]} commands < <(grep -E "$pattern" <<< "$listed")
 done
 [ ${#commands[@]} -gt 0 ] || { echo "no run of the plan matches $lines, runs $runs"; exit 1; }
 pids=()
 dirs=()
+finish() {  # stop the runs (SIGINT: each checkpoints), then pack them; also on SIGTERM or Ctrl-C
+    trap - INT TERM
+    for p in "${pids[@]}"; do kill -INT -- "-$p" 2>/dev/null; done  # each run's process group
+    for _ in $(seq 120); do
+        alive=0
+        for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && alive=1; done
+        [ $alive -eq 0 ] && break
+        sleep 1
+    done
+    for p in "${pids[@]}"; do  # its checkpoint is written whole or not at all (os.replace)
+        kill -0 "$p" 2>/dev/null || continue
+        echo "run $p still going after 120 s: killed"
+        kill -KILL -- "-$p"
+    done
+    for d in "${dirs[@]}"; do
+        # FIG-GAME-LINE-run-N
+        name=$(echo "${d#results/atari_figures/}" | sed 's|/runs/|-|; s|/|-|g')
+        tar -czf "$out/$name.tar.gz" "$d"
+        tail -n 2 "$d/stdout.log" | tee -a "$out/device_leg.log"
+    done
+    ls -la "$out"
+    exit 0
+}
+trap finish INT TERM
 for c in "${commands[@]}"; do
     echo "$c"
     dir=${c##* --run-dir }
@@ -43,17 +72,6 @@ for c in "${commands[@]}"; do
     eval "exec setsid $python ${c#python }" >> "$dir/stdout.log" 2>> "$dir/stderr.log" &
     pids+=($!)
 done
-sleep "$seconds"
-for p in "${pids[@]}"; do kill -INT -- "-$p" 2>/dev/null; done  # each run's process group (setsid)
-for _ in $(seq 120); do
-    alive=0
-    for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && alive=1; done
-    [ $alive -eq 0 ] && break
-    sleep 1
-done
-for d in "${dirs[@]}"; do
-    name=$(echo "${d#results/atari_figures/}" | sed 's|/runs/|-|; s|/|-|g')  # FIG-GAME-LINE-run-i
-    tar -czf "$out/$name.tar.gz" "$d"
-    tail -n 2 "$d/stdout.log" | tee -a "$out/device_leg.log"
-done
-ls -la "$out"
+sleep "$seconds" &
+wait $!  # a signal's trap runs at once, not after the sleep
+finish
