@@ -2,8 +2,9 @@
 # The campaign's leg on a lent 16-core machine: some runs of some Atari lines of the plan (each
 # run's command exactly as the plan's sweep would launch it: `sweep ... --dry-run`), side by side,
 # for SECONDS, then stopped with SIGINT (the scripts save their checkpoints); each run folder is
-# packed into OUT as one .tar.gz, the runs' last lines into OUT/device_leg.log. A SIGTERM or
-# Ctrl-C to this script stops the runs and packs them at once.
+# packed into OUT as one .tar.gz, the runs' last lines into OUT/device_leg.log, and a row per
+# line for results/campaign/SWEEPS.tsv (its item, the leg's start and end, this CPU) into
+# OUT/SWEEPS.rows. A SIGTERM or Ctrl-C to this script stops the runs and packs them at once.
 #
 #     results/campaign/device_leg.sh SECONDS OUT [LINES] [RUNS]   (PYTHON: the interpreter)
 #
@@ -17,6 +18,7 @@
 # only the folders that are not here (a run folder is one run's, whole):
 #     for f in OUT/*.tar.gz; do d=$(tar -tzf "$f" | head -1 | cut -d/ -f1-7)
 #         if [ -e "$d" ]; then echo "kept $d, not $f"; else tar -xzf "$f"; fi; done
+#     cat OUT/SWEEPS.rows >> results/campaign/SWEEPS.tsv
 set -uo pipefail +m  # +m: no job control, so `exec setsid` below does not fork and $! is the run
 shopt -s nullglob
 seconds=$1
@@ -59,10 +61,26 @@ finish() {  # stop the runs (SIGINT: each checkpoints), then pack them; also on 
         tar -czf "$out/$name.tar.gz" "$d"
         tail -n 2 "$d/stdout.log" | tee -a "$out/device_leg.log"
     done
+    ended=$(date +%s)
+    mapfile -t folders < <(printf '%s\n' "${dirs[@]%/runs/*}" | awk '!seen[$0]++')  # the lines
+    "$python" - "$started" "$ended" "${folders[@]}" > "$out/SWEEPS.rows" <<'ROWS'
+import os, sys, time
+from pathlib import Path
+from a3c_tools.campaign import cpu_model, load_plan
+started, ended, *folders = sys.argv[1:]
+items = load_plan(Path("results/campaign/plan.toml").resolve())
+stamp = lambda t: time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(int(t)))
+for folder in folders:  # the first item that sweeps the line, as the campaign counts it
+    item = next(i.id for i in items if any(str(s.out) == folder for s in i.sweeps))
+    row = [item, folder, stamp(started), stamp(ended), str(int(ended) - int(started)), "0", "0"]
+    print("\t".join([*row, cpu_model(), str(os.cpu_count())]))
+ROWS
+    cat "$out/SWEEPS.rows"
     ls -la "$out"
     exit 0
 }
 trap finish INT TERM
+started=$(date +%s)
 for c in "${commands[@]}"; do
     echo "$c"
     dir=${c##* --run-dir }
