@@ -67,6 +67,22 @@ def write_plan(tmp_path: Path, items: str) -> Path:
     return plan
 
 
+def extend_plan(tmp_path: Path, line: Path, runs: int) -> Path:
+    """A plan of one item, "a1", that extends the fixture's line (2 runs) to `runs`."""
+    agent = line.parent / "agents" / "a3c_ff.py"
+    return write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "a1"
+        title = "the line to {runs} runs"
+        kind = "extend"
+        runs = {runs}
+        lines = [{{ script = "{agent}", out = "{line}", first_look = 2 }}]
+        """,
+    )
+
+
 def starts(line: Path) -> list[str]:
     log = line.parent / "agents" / "starts.log"
     return log.read_text().split() if log.exists() else []
@@ -79,18 +95,7 @@ def rows(folder: Path) -> list[dict]:
 
 def test_extend_keeps_the_first_runs_adds_the_rest_and_resumes(line, tmp_path):
     before = rows(line)
-    agent = line.parent / "agents" / "a3c_ff.py"
-    plan = write_plan(
-        tmp_path,
-        f"""
-        [[item]]
-        id = "a1"
-        title = "the line to 4 runs"
-        kind = "extend"
-        runs = 4
-        lines = [{{ script = "{agent}", out = "{line}", first_look = 2 }}]
-        """,
-    )
+    plan = extend_plan(tmp_path, line, 4)
     result = run_main(campaign.main, [str(plan)])
     assert result.returncode == 0, result.stderr
     assert sorted(starts(line)) == ["run-0002", "run-0003"]  # the first look's runs are kept
@@ -262,18 +267,7 @@ def test_a_running_sweeps_row_is_written_at_its_start_and_kept_current(line, tmp
     """A campaign killed outright (a session's end) leaves its last sweep's span in SWEEPS.tsv:
     the row is there from the sweep's start, its end kept current while it runs, and one row
     per sweep when it ends."""
-    agent = line.parent / "agents" / "a3c_ff.py"
-    plan = write_plan(
-        tmp_path,
-        f"""
-        [[item]]
-        id = "a1"
-        title = "the line to 3 runs"
-        kind = "extend"
-        runs = 3
-        lines = [{{ script = "{agent}", out = "{line}", first_look = 2 }}]
-        """,
-    )
+    plan = extend_plan(tmp_path, line, 3)
     log = plan.parent / "SWEEPS.tsv"
     seen = []
 
