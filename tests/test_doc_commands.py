@@ -195,7 +195,7 @@ def test_the_commands_are_found():
     readme = commands(ROOT / "README.md")
     assert ["python", "agents/a3c_ff.py", "--help"] in readme
     assert any(c[:3] == ["python", "-m", "a3c_tools.sweep"] and c[-1] == "12500" for c in readme)
-    assert ["python", "-m", "pytest"] in readme
+    assert ["python", "-m", "pytest", "-n", "auto"] in readme
 
 
 def test_a_stale_command_fails(monkeypatch, tmp_path):
