@@ -1,5 +1,6 @@
-"""--track: a run logged to Weights & Biases, CleanRL's way (the TensorBoard scalars synced, the
-flags as its config), here in W&B's offline mode; without wandb, one line and exit 2."""
+"""--track: a run logged to Weights & Biases, CleanRL's way (each TensorBoard scalar, against
+global_step; the flags as its config), here in W&B's offline mode; without wandb, one line and
+exit 2."""
 
 import importlib.util
 
@@ -23,8 +24,8 @@ def test_a_tracked_run_writes_its_flags_and_scalars_to_wandb(tmp_path, monkeypat
     data = record.read_bytes()
     for flag in (b"learning_rate", b"0.000321", b"wandb_project_name", b"deep-rl-video-games"):
         assert flag in data, flag  # the flags, as its config
-    for scalar in (b"eval/mean_return", b"charts/SPS", b"losses/entropy"):
-        assert scalar in data, scalar  # the TensorBoard scalars, synced
+    for scalar in (b"eval/mean_return", b"charts/SPS", b"losses/entropy", b"global_step"):
+        assert scalar in data, scalar  # the TensorBoard scalars, and their x axis
     assert (run_dir / "evaluations.csv").exists()  # and the run's own files as ever
 
 

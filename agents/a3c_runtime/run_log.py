@@ -63,22 +63,28 @@ def last_evaluation(csv_path: Path) -> dict | None:
 
 
 def start_wandb(args: Any, run_dir: Path) -> Any:
-    """--track: a Weights & Biases run (CleanRL's way) before the TensorBoard writer exists, so
-    that its scalars are synced; the flags are its config, the run folder its name. WANDB_MODE
-    (online, offline) and the credentials are W&B's own settings."""
+    """--track: a Weights & Biases run (CleanRL's way): the flags are its config, the run folder
+    its name; RunLog logs to it each scalar it gives TensorBoard, against global_step. Logged
+    directly rather than with sync_tensorboard=True: W&B's reading of the events file missed
+    scalars (all of them, or the last ones) in runs that end soon after they start (W&B 0.31).
+    WANDB_MODE (online, offline) and the credentials are W&B's own settings."""
     import wandb
 
-    return wandb.init(
+    run = wandb.init(
         project=args.wandb_project_name,
         entity=args.wandb_entity,
         name=run_dir.name,
         dir=str(run_dir),
         config=vars(args),
-        sync_tensorboard=True,
         resume="allow",
         id=run_dir.name.replace("__", "-"),  # a resumed run continues its W&B run
         settings=wandb.Settings(quiet=True),
     )
+    # the x axis of every chart: evaluations arrive after later progress lines, so W&B's own
+    # step, which must only grow, cannot be the environment step
+    run.define_metric("global_step")
+    run.define_metric("*", step_metric="global_step")
+    return run
 
 
 class RunLog:
@@ -163,27 +169,34 @@ class RunLog:
                "mean_return": float(scores.mean()), "std_return": float(scores.std()),
                "episodes": len(scores)}  # fmt: skip
         self.append_row(row.values())
-        with self.writing_events():
-            self.writer.add_scalar("eval/mean_return", row["mean_return"], row["global_step"])
-            self.writer.add_scalar("eval/std_return", row["std_return"], row["global_step"])
+        self.scalars(
+            {"eval/mean_return": row["mean_return"], "eval/std_return": row["std_return"]},
+            row["global_step"],
+        )
         self.last_eval = row
         self.eval_seconds += result["seconds"]
+
+    def scalars(self, values: dict[str, float], global_step: int) -> None:
+        """TensorBoard's scalars at global_step, and W&B's under --track."""
+        with self.writing_events():
+            for tag, value in values.items():
+                self.writer.add_scalar(tag, value, global_step)
+        if self.wandb is not None:
+            self.wandb.log({**values, "global_step": global_step})
 
     def progress(self, global_step: int, sps: float, lr: float, stats_delta: torch.Tensor) -> None:
         """Log the scalars of the last interval; stats_delta holds Shared.STATS summed."""
         stats = dict(zip(Shared.STATS, stats_delta.tolist(), strict=True))
         episodes, updates = stats["episodes"], stats["updates"]
-        with self.writing_events():
-            self.writer.add_scalar("charts/SPS", sps, global_step)
-            self.writer.add_scalar("charts/learning_rate", lr, global_step)
-            if episodes > 0:
-                self.recent_return = stats["return_sum"] / episodes
-                self.writer.add_scalar("charts/episodic_return", self.recent_return, global_step)
-                length = stats["length_sum"] / episodes
-                self.writer.add_scalar("charts/episodic_length", length, global_step)
-            if updates > 0:
-                for key in ("policy_loss", "value_loss", "entropy", "grad_norm"):
-                    self.writer.add_scalar(f"losses/{key}", stats[key] / updates, global_step)
+        scalars = {"charts/SPS": sps, "charts/learning_rate": lr}
+        if episodes > 0:
+            self.recent_return = stats["return_sum"] / episodes
+            scalars["charts/episodic_return"] = self.recent_return
+            scalars["charts/episodic_length"] = stats["length_sum"] / episodes
+        if updates > 0:
+            for key in ("policy_loss", "value_loss", "entropy", "grad_norm"):
+                scalars[f"losses/{key}"] = stats[key] / updates
+        self.scalars(scalars, global_step)
         total_steps = self.args.total_timesteps
         eta = (total_steps - global_step) / sps if sps > 0 else float("inf")
         last = self.last_eval
