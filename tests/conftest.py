@@ -145,16 +145,19 @@ def run_main(main, argv: list[str], cwd: Path = ROOT) -> subprocess.CompletedPro
     return subprocess.CompletedProcess(argv, code or 0, out.getvalue(), err.getvalue())
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """A test whose module has a `start_at_collection` function runs last: its work starts once
-    collection ends (below) and goes on beside the other tests, which mostly wait on processes
-    and leave a core free (tests/test_learning.py's runs)."""
-    items.sort(key=lambda item: hasattr(item.module, "start_at_collection"))  # stable
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A test whose module has a `start_at_collection` function (tests/test_learning.py's runs)
+    runs last in one process: its work starts once collection ends (below) and goes on beside
+    the other tests, which mostly wait on processes and leave a core free. Under pytest-xdist
+    (-n) it runs first instead, starting its work itself, in the first worker; the other tests
+    go to the others, and to that one once it is done."""
+    under_xdist = hasattr(config, "workerinput")
+    items.sort(key=lambda item: hasattr(item.module, "start_at_collection") != under_xdist)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
-    if session.config.option.collectonly:
-        return
+    if session.config.option.collectonly or hasattr(session.config, "workerinput"):
+        return  # (each xdist worker collects every test; the test starts its own work there)
     modules = {item.module for item in session.items if hasattr(item.module, "start_at_collection")}
     for module in modules:
         module.start_at_collection()

@@ -91,8 +91,9 @@ def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting(monkeypa
 @pytest.mark.slow
 def test_a3c_throughput_compares_the_atari_backends_with_the_two_ceilings(monkeypatch, capsys):
     pytest.importorskip("ale_py")
+    # 2 s per measurement: a start-up slowed by the tests beside it can take all of 1 s
     result = run(
-        "a3c_throughput.py", "--env", "BreakoutNoFrameskip-v4", "--seconds", "1",
+        "a3c_throughput.py", "--env", "BreakoutNoFrameskip-v4", "--seconds", "2",
         "--no-baseline", "--envs-per-worker", "2", "1", "--precision", "bf16", "--eval-episodes",
         "1", "--env-backend", "native", "python", "--env-threads", "1", "2", "--ceilings",
         monkeypatch=monkeypatch, capsys=capsys,

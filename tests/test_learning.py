@@ -10,7 +10,9 @@ threshold sits well below what the loop's runs reach and well above random play 
 machine whose floating point takes seed 1's run another way is one more such draw, not a run at
 the threshold. The three run side by side, each main() in a forked copy of the test process (no
 new interpreter), started as soon as collection has selected this test, which runs last: the runs
-learn while the slow tier's other tests, which mostly wait on processes, run beside them.
+learn while the slow tier's other tests, which mostly wait on processes, run beside them. Under
+pytest-xdist (CI's `-n auto`) the test runs first in a worker and starts them itself, the other
+workers taking the rest.
 """
 
 import ctypes
