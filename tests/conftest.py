@@ -149,7 +149,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """A test whose module has a `start_at_collection` function (tests/test_learning.py's runs)
     runs last in one process: its work starts once collection ends (below) and goes on beside
     the other tests, which mostly wait on processes and leave a core free. Under pytest-xdist
-    (-n) it runs first instead, starting its work itself, in the first worker; the other tests
+    (-n) it runs first instead, in one worker, and starts its work itself; the other tests
     go to the others, and to that one once it is done."""
     under_xdist = hasattr(config, "workerinput")
     items.sort(key=lambda item: hasattr(item.module, "start_at_collection") != under_xdist)
