@@ -6,6 +6,7 @@ at once; the committed plan is checked against the committed lines it extends.
 """
 
 import csv
+import io
 import json
 import os
 import shlex
@@ -16,6 +17,8 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
+from a3c_runtime import checkpoints
 from a3c_tools import campaign, figure_sweeps, sweep
 from conftest import ROOT, run_main
 
@@ -147,6 +150,27 @@ def test_progress_counts_a_shared_line_once_and_estimates_what_is_left(line, tmp
     assert f"| a1: to 3 | 0 of 1 | 0.0 | {left} |" in result.stdout
     assert "| a2: to 3 again | 0 of 0 | 0.0 | 0.0 |" in result.stdout
     assert "**0 of 1**" in result.stdout
+
+
+def test_progress_counts_a_begun_runs_steps_from_its_checkpoint(line, tmp_path):
+    plan = extend_plan(tmp_path, line, 4)
+    run_dir = line / "runs" / "run-0002"  # begun (elsewhere, say), half its 100 steps done
+    run_dir.mkdir(parents=True)
+    buffer = io.BytesIO()
+    torch.save({"format": checkpoints.CHECKPOINT_FORMAT, "global_step": 50}, buffer)
+    (run_dir / "checkpoint.pt").write_bytes(checkpoints.seal(buffer.getvalue()))
+    committed = rows(line)
+    for row in committed:  # each finished run: one CPU-hour (one worker, an hour)
+        row["wall_time_s"] = "3600"
+    with (line / "results.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(committed[0]))
+        writer.writeheader()
+        writer.writerows(committed)
+    result = run_main(campaign.main, [str(plan), "--status"])
+    assert result.returncode == 0, result.stderr
+    # left: run 3 whole and the half of run 2 not done yet
+    assert "| a1: the line to 4 runs | 0 of 2 | 0.0 | 1.5 |" in result.stdout
+    assert "| 1 (50% of their steps) |\n" in result.stdout
 
 
 def test_repeat_runs_run_0_again_and_compares_its_score(line, tmp_path):

@@ -30,7 +30,8 @@ checkpoint) and the campaign with it (exit 130).
 After each sweep, and with --status, the progress (runs done of the plan, CPU-hours spent on
 the plan's new runs and an estimate of those left) is written to PROGRESS.md beside the plan.
 CPU-hours are wall time x workers, from the sweeps' results.csv; a run not yet made is
-estimated from its line's finished runs, or from the item's `cpu_hours_per_run`.
+estimated from its line's finished runs, or from the item's `cpu_hours_per_run`, less the share
+of its steps that its checkpoint holds where it has begun (here or on another machine).
 
 Exit codes: 0 when the plan is done, 1 when a sweep failed, 2 for a bad plan (nothing runs),
 130 when interrupted.
@@ -101,6 +102,32 @@ def workers(row: dict) -> int:
         if flag in ("--num-workers", "--num_workers"):
             return int(value)
     return 1
+
+
+def sweep_steps(command: list[str]) -> int | None:
+    """A sweep command's --total-timesteps (each run's budget), or None if it sets none."""
+    for flag, value in zip(command, command[1:], strict=False):
+        if flag == "--total-timesteps":
+            return int(value)
+    return None
+
+
+def begun_steps(sweep: Sweep, rows: list[dict]) -> list[int]:
+    """The steps that the plan's begun, unfinished runs of a sweep have done: their run folders'
+    checkpoints' global steps (a run begun on another machine and unpacked here counts too)."""
+    finished = {row["run_id"] for row in rows}
+    steps = []
+    for index in range(sweep.first_look, sweep.runs):
+        run = f"run-{index:04d}"
+        path = sweep.out / "runs" / run / "checkpoint.pt"
+        if run in finished or not path.is_file():
+            continue
+        from a3c_runtime.checkpoints import checkpoint_step  # torch: only where a run has begun
+
+        step = checkpoint_step(path)
+        if step is not None:
+            steps.append(step)
+    return steps
 
 
 def extend_command(script: str, out: Path, runs: int, where: str, source: Path) -> list[str]:
@@ -210,13 +237,15 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
     (SWEEPS.tsv), each item's wall time and CPUs too."""
     clocks = item_clocks(log) if log is not None else {}
     lines = ["| item | runs done of plan | CPU-hours spent | CPU-hours left (est.) | wall time "
-             "(hours) | CPUs |", "|---|---|---|---|---|---|"]  # fmt: skip
-    total_done = total_plan = 0
+             "(hours) | CPUs | runs begun, unfinished (their steps done) |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    total_done = total_plan = total_begun = 0
     total_spent = total_left = 0.0
     seen: set[Path] = set()
     for item in items:
         done = plan = 0
         spent = left = 0.0
+        begun: list[float] = []  # each begun run's share of its budget done
         for sweep in item.sweeps:
             if sweep.out in seen:  # a line shared by two items counts once, in the first
                 continue
@@ -231,15 +260,21 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
             done += len(new_rows)
             plan += max(sweep.runs - sweep.first_look, 0)
             spent += sum(cost[sweep.first_look :][: sweep.runs - sweep.first_look])
-            left += per_run * max(sweep.runs - max(len(rows), sweep.first_look), 0)
+            budget = sweep_steps(sweep.command)
+            shares = [min(s / budget, 1.0) for s in begun_steps(sweep, rows)] if budget else []
+            begun += shares
+            unstarted = max(sweep.runs - max(len(rows), sweep.first_look), 0)
+            left += per_run * max(unstarted - sum(shares), 0.0)
         wall, cpus = clocks.get(item.id, (0.0, []))
+        share = f"{len(begun)} ({sum(begun) / len(begun):.0%} of their steps)" if begun else "-"
         lines.append(f"| {item.id}: {item.title} | {done} of {plan} | {spent:.1f} | {left:.1f} "
-                     f"| {wall:.1f} | {'; '.join(cpus) or '-'} |")  # fmt: skip
+                     f"| {wall:.1f} | {'; '.join(cpus) or '-'} | {share} |")  # fmt: skip
         total_done, total_plan = total_done + done, total_plan + plan
         total_spent, total_left = total_spent + spent, total_left + left
+        total_begun += len(begun)
     lines.append(
         f"| {ALL} | **{total_done} of {total_plan}** | **{total_spent:.1f}** | "
-        f"**{total_left:.1f}** | **{clocks.get(ALL, (0.0,))[0]:.1f}** | |"
+        f"**{total_left:.1f}** | **{clocks.get(ALL, (0.0,))[0]:.1f}** | | **{total_begun}** |"
     )
     return "\n".join(lines) + "\n", total_done >= total_plan
 
