@@ -96,20 +96,17 @@ def read_rows(out: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-def workers(row: dict) -> int:
-    words = shlex.split(row.get("flags") or "")
+def flag_value(words: list[str], *names: str) -> str | None:
+    """The value after the first of `names` in a command's words, or None if none is there."""
     for flag, value in zip(words, words[1:], strict=False):
-        if flag in ("--num-workers", "--num_workers"):
-            return int(value)
-    return 1
-
-
-def sweep_steps(command: list[str]) -> int | None:
-    """A sweep command's --total-timesteps (each run's budget), or None if it sets none."""
-    for flag, value in zip(command, command[1:], strict=False):
-        if flag == "--total-timesteps":
-            return int(value)
+        if flag in names:
+            return value
     return None
+
+
+def workers(row: dict) -> int:
+    value = flag_value(shlex.split(row.get("flags") or ""), "--num-workers", "--num_workers")
+    return 1 if value is None else int(value)
 
 
 def begun_steps(sweep: Sweep, rows: list[dict]) -> list[int]:
@@ -260,7 +257,7 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
             done += len(new_rows)
             plan += max(sweep.runs - sweep.first_look, 0)
             spent += sum(cost[sweep.first_look :][: sweep.runs - sweep.first_look])
-            budget = sweep_steps(sweep.command)
+            budget = int(flag_value(sweep.command, "--total-timesteps") or 0)  # steps a run
             shares = [min(s / budget, 1.0) for s in begun_steps(sweep, rows)] if budget else []
             begun += shares
             unstarted = max(sweep.runs - max(len(rows), sweep.first_look), 0)
