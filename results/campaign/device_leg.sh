@@ -11,13 +11,15 @@
 # LINES: an extended regular expression of the lines' folders under results/atari_figures/,
 # matched whole; RUNS: the run indices. Default: runs 0-2 of item b's two lines on Pong (item
 # c's, d's and c2's LPQ on Breakout began in three earlier legs). Six runs fit: 12 workers, and 6
-# packed folders of 5-11 MB each, under the 64 MiB that comes back. Pick runs none of which exist
-# here: the machine starts without this machine's run folders (they are ignored files), so a run
-# begun here would begin again there. The campaign's sweeps resume the runs unpacked here from
-# their checkpoints (a run's folder is all a sweep needs of it). Unpack at the repository root
-# only the folders that are not here (a run folder is one run's, whole):
+# packed folders of 5-11 MB each, under the 64 MiB that comes back. The machine starts without
+# this machine's run folders (they are ignored files): a run begun here is resumed there from its
+# checkpoint only if its folder is carried (the run tool's `carry`: with the wheels, 4 folders of
+# about 12 MB fit its 64 MiB), and a run whose folder is not there starts there. Carry only runs
+# that the campaign here will not reach while the leg runs. The campaign's sweeps resume the runs
+# unpacked here from their checkpoints (a run's folder is all a sweep needs of it). Unpack at the
+# repository root; a folder that came back replaces this machine's copy, which it continues:
 #     for f in OUT/*.tar.gz; do d=$(tar -tzf "$f" | head -1 | cut -d/ -f1-7)
-#         if [ -e "$d" ]; then echo "kept $d, not $f"; else tar -xzf "$f"; fi; done
+#         rm -rf "$d" && tar -xzf "$f"; done
 #     cat OUT/SWEEPS.rows >> results/campaign/SWEEPS.tsv
 set -uo pipefail +m  # +m: no job control, so `exec setsid` below does not fork and $! is the run
 shopt -s nullglob
@@ -82,9 +84,15 @@ ROWS
 trap finish INT TERM
 started=$(date +%s)
 for c in "${commands[@]}"; do
-    echo "$c"
     dir=${c##* --run-dir }
-    [ -e "$dir" ] && { echo "$dir exists here: not run"; continue; }
+    if [ -f "$dir/checkpoint.pt" ]; then  # carried here: resumed, as the sweep would resume it
+        script=${c#python }
+        c="python ${script%% *} --resume $dir/checkpoint.pt"
+    elif [ -e "$dir" ]; then
+        echo "$dir exists here without a checkpoint: not run"
+        continue
+    fi
+    echo "$c"
     dirs+=("$dir")
     mkdir -p "$dir"
     eval "exec setsid $python ${c#python }" >> "$dir/stdout.log" 2>> "$dir/stderr.log" &
