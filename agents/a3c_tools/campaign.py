@@ -28,7 +28,8 @@ the row is written when the sweep starts and kept current while it runs, so a ca
 outright loses at most a minute of it. A SIGTERM while a sweep runs stops it cleanly (its runs
 checkpoint) and the campaign with it (exit 130).
 After each sweep, and with --status, the progress (runs done of the plan, CPU-hours spent on
-the plan's new runs and an estimate of those left) is written to PROGRESS.md beside the plan.
+the plan's new runs, an estimate of those left, and the runs begun but unfinished) is written to
+PROGRESS.md beside the plan.
 CPU-hours are wall time x workers, from the sweeps' results.csv; a run not yet made is
 estimated from its line's finished runs, or from the item's `cpu_hours_per_run`, less the share
 of its steps that its checkpoint holds where it has begun (here or on another machine).
