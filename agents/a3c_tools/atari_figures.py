@@ -57,6 +57,7 @@ import functools
 import math
 import shlex
 import sys
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -352,14 +353,15 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:  # a game with no runs yet has no line to name
             ax.legend(fontsize=7)
-    fig.suptitle(
-        f"Thesis Figure {figure.id.removeprefix('fig')}: mean over seeds +- one standard error "
-        f"over {'/'.join(sorted(episodes))} episodes per evaluation (the thesis: 5 runs, "
-        f"{THESIS_EPISODES} episodes per evaluation)",
-        fontsize=10,
+    title = textwrap.wrap(  # one panel holds about 80 characters of the title's size
+        f"Thesis Figure {figure.id.removeprefix('fig')}: the mean over seeds, shaded +- one "
+        f"standard error over seeds; {'/'.join(sorted(episodes))} episodes per evaluation (the "
+        f"thesis: 5 runs, {THESIS_EPISODES} episodes per evaluation)",
+        80 * len(games),
     )
+    fig.suptitle("\n".join(title), fontsize=10)
     fig.text(0.01, 0.01, f"thesis: {figure.thesis}", fontsize=7, wrap=True)
-    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    fig.tight_layout(rect=(0, 0.08, 1, 1))  # the suptitle is laid out with the panels
     png = out / f"{figure.id}.png"
     fig.savefig(png, dpi=100)
     plt.close(fig)
