@@ -101,6 +101,9 @@ def test_every_claim_names_its_place_form_and_evidence_and_its_lines_exist_or_a_
         if "baseline" in claim:
             assert claim["expect"] in ("better", "worse", "comparable")
             assert claim["command"] and len(claim["names"]) == 2
+        elif "atari" in claim:  # one line, judged seed by seed
+            assert claim["expect"] == "random play"
+            assert claim["command"] and len(claim["names"]) == 1
         else:
             assert claim["ours"] and claim["verdict"]
     wheres = " ".join(claim["where"] for claim in rows)
@@ -306,3 +309,39 @@ def test_an_atari_row_pairs_its_lines_by_seed_at_the_full_steps(tmp_path, monkey
     assert claims.evidence(claim)[2].startswith("no verdict: both lines at random play")
     with pytest.raises(ValueError, match="better or worse"):
         claims.evidence({**claim, "expect": "comparable"})
+
+
+def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp_path, monkeypatch):
+    monkeypatch.setattr(claims, "ROOT", tmp_path)
+    atari = {"figure": "fig", "game": "Pong", "steps": 3_000_000, "seeds": 3, "item": "b-x"}
+    claim = {"atari": atari, "line": "vf1.0", "names": ["--vf-coef 1.0"],
+             "expect": "random play", "command": "run it"}  # fmt: skip
+
+    # Pong: random play -20.7, human 14.6, so a run above -20.7 + 0.05 * 35.3 = -18.935 learned
+    def judged(finals, steps=3_000_080):
+        rows = [
+            ("Pong", "vf1.0", seed, final, steps)
+            for seed, final in zip((1, 1001, 2001), finals, strict=True)
+        ]
+        rows += [("Pong", "vf0.5", seed, 15.0, steps) for seed in (1, 1001, 2001)]  # other line
+        write_figure(tmp_path / "fig", rows)
+        return claims.evidence(claim)
+
+    ours, effect, verdict = judged([-13.1, -2.3, -8.5])
+    assert (effect, verdict) == ("-", "contradicted: all 3 seeds left random play")
+    assert "-13.1, -2.3, -8.5" in ours and "random play -20.7" in ours and "-18.9" in ours
+    assert judged([-20.9, -19.0, -20.1])[2] == "reproduced: none of the 3 seeds left random play"
+    assert judged([-20.9, -18.8, -20.1])[2] == "inconclusive: 1 of 3 seeds left random play"
+    assert judged([-20.9, 5.0, -18.0])[2] == "inconclusive: 2 of 3 seeds left random play"
+    # a seed short of the steps: not judged on the others
+    assert judged([-13.1, -2.3, -8.5], steps=2_000_000)[2] == "not run yet"
+    assert "campaign item b-x, not finished" in judged([-13.1, -2.3, -8.5], steps=2_000_000)[0]
+    with pytest.raises(ValueError, match="expects random play"):
+        claims.evidence({**claim, "expect": "worse"})
+    # the forest plot leaves it off, and the caption counts it among the rows without a pair
+    row = {**claim, "claim": "c", "where": "Fig 6.10", "form": "as run", "thesis": "t"}
+    data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}
+    judged([-13.1, -2.3, -8.5])
+    assert claims.forest_points(data) == []
+    text = claims.caption(data, [claims.evidence(row)])
+    assert "Left off: 1 judged without a pair of lines (1 in A)." in text

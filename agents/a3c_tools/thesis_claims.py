@@ -19,7 +19,9 @@ results.csv that `a3c_tools.atari_figures --plot-only` writes, paired by seed, w
 interval (95%, n - 1 degrees of freedom: at 3 seeds t = 4.30, so only a large, consistent
 effect is decided). Until both lines hold every seed at the full steps, the row keeps what it
 said before (`ours`, `verdict`) and names the campaign item. Its effect is in the game's score,
-so the forest plot, in Catch score, leaves it off (the caption counts it).
+so the forest plot, in Catch score, leaves it off (the caption counts it). An Atari row of one
+line (no `baseline`, `expect = "random play"`: Figure 6.10's "no learning at all") is judged
+seed by seed against random play, with no interval (`atari_line_evidence`).
 
 Looks. A row rests on a fixed set of runs: its first look, runs 0..runs-1 of both lines (the
 claim's `runs`, FIRST_LOOK by default), whatever else its lines hold (a line shared with a row
@@ -55,7 +57,7 @@ from pathlib import Path
 
 from a3c_tools import run_main
 from a3c_tools.atari_figures import EVAL_EPISODES, SEED
-from a3c_tools.paired import MARGIN, SECOND_LOOK, Paired, pair, read_scores
+from a3c_tools.paired import MARGIN, SECOND_LOOK, Paired, pair, random_play, read_scores
 
 try:
     import tomllib
@@ -181,6 +183,8 @@ def compared(claim: dict) -> Looks | None:
 
 def evidence(claim: dict) -> tuple[str, str, str]:
     """(our numbers, the effect with its interval, the verdict) of one claim."""
+    if "atari" in claim and "baseline" not in claim:
+        return atari_line_evidence(claim)
     if "baseline" not in claim:
         return claim["ours"], "-", claim["verdict"]
     column = claim.get("score", "score")
@@ -210,12 +214,8 @@ def atari_evidence(claim: dict, paired: Paired | None) -> tuple[str, str, str]:
     final evaluations paired by seed, or, until every seed of both lines is done, what the row
     said before (`ours`, `verdict`) or "not run yet", and the campaign item that runs it."""
     atari = claim["atari"]
-    budget = f"{atari['seeds']} seeds x {atari['steps'] / 1e6:g}M steps per line"
     if paired is None:
-        todo = f"{budget}: campaign item {atari['item']}, not finished"
-        if "ours" in claim:
-            return claim["ours"], "-", f"{claim['verdict']}; {todo}"
-        return f"not run yet ({todo}; the command is in the last section)", "-", "not run yet"
+        return atari_unfinished(claim)
     names = claim["names"]
     seeds = ", ".join(
         f"{other:.1f} vs {base:.1f}" for other, base in zip(paired.other, paired.base, strict=True)
@@ -227,6 +227,52 @@ def atari_evidence(claim: dict, paired: Paired | None) -> tuple[str, str, str]:
         f"[{atari['figure']}]({link(atari['figure'])}))"
     )
     return ours, paired.shown(), paired.verdict(claim["expect"])
+
+
+def atari_unfinished(claim: dict) -> tuple[str, str, str]:
+    """An Atari row whose runs are not all done: what it said before (`ours`, `verdict`) or "not
+    run yet", and the campaign item that runs it."""
+    atari = claim["atari"]
+    todo = (
+        f"{atari['seeds']} seeds x {atari['steps'] / 1e6:g}M steps per line: campaign item "
+        f"{atari['item']}, not finished"
+    )
+    if "ours" in claim:
+        return claim["ours"], "-", f"{claim['verdict']}; {todo}"
+    return f"not run yet ({todo}; the command is in the last section)", "-", "not run yet"
+
+
+def atari_line_evidence(claim: dict) -> tuple[str, str, str]:
+    """(our numbers, "-", the verdict) of an Atari row about one line alone, that it does not
+    leave random play (`expect = "random play"`): each seed's final evaluation against the
+    game's random play, a run more than the slack above it (5% of the human - random range,
+    a3c_tools.paired's rule) having learned. Reproduced when no seed learned, contradicted when
+    every seed did, inconclusive, with the count, when some did; no interval, the claim being of
+    every run and not of a mean."""
+    atari, line = claim["atari"], claim["line"]
+    if claim["expect"] != "random play":
+        raise ValueError(f"an Atari row of one line expects random play, not {claim['expect']!r}")
+    found = atari_scores(atari, line)
+    ids = run_ids(atari["seeds"])
+    if not set(ids) <= set(found):  # judged on every seed or none
+        return atari_unfinished(claim)
+    random, slack = random_play(f"{atari['game']}NoFrameskip-v4")
+    finals = [found[run_id] for run_id in ids]
+    learned = sum(final > random + slack for final in finals)
+    ours = (
+        f"{claim['names'][0]}: the final evaluation at {atari['steps'] / 1e6:g}M steps "
+        f"({EVAL_EPISODES} episodes) of seeds {SEED}, {SEED + 1000}, ...: "
+        f"{', '.join(f'{final:.1f}' for final in finals)}; random play {random:g}, and a run "
+        f"above {random + slack:.1f} (5% of the human - random range) has left it "
+        f"([{atari['figure']}]({link(atari['figure'])}))"
+    )
+    if learned == 0:
+        call = f"reproduced: none of the {len(finals)} seeds left random play"
+    elif learned == len(finals):
+        call = f"contradicted: all {len(finals)} seeds left random play"
+    else:
+        call = f"inconclusive: {learned} of {len(finals)} seeds left random play"
+    return ours, "-", call
 
 
 def link(folder: str) -> str:
@@ -381,7 +427,7 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
         (section["title"], claim) for section in claims["section"] for claim in section["claim"]
     ]
     for (title, claim), (_, effect, call) in zip(rows_of, rows, strict=True):
-        if "atari" in claim:
+        if "atari" in claim and "baseline" in claim:
             why = "with an effect in a game's score, not Catch's"
         elif effect == "-":
             why = "not run yet" if call == "not run yet" else "judged without a pair of lines"
