@@ -318,12 +318,10 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
              "expect": "random play", "command": "run it"}  # fmt: skip
 
     # Pong: random play -20.7, human 14.6, so a run above -20.7 + 0.05 * 35.3 = -18.935 learned
-    def judged(finals, steps=3_000_080):
-        rows = [
-            ("Pong", "vf1.0", seed, final, steps)
-            for seed, final in zip((1, 1001, 2001), finals, strict=True)
-        ]
-        rows += [("Pong", "vf0.5", seed, 15.0, steps) for seed in (1, 1001, 2001)]  # other line
+    def judged(finals):
+        seeds = (1, 1001, 2001)
+        rows = [("Pong", "vf1.0", s, f, 3_000_080) for s, f in zip(seeds, finals, strict=True)]
+        rows += [("Pong", "vf0.5", seed, 15.0, 3_000_080) for seed in seeds]  # the other line
         write_figure(tmp_path / "fig", rows)
         return claims.evidence(claim)
 
@@ -333,9 +331,11 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
     assert judged([-20.9, -19.0, -20.1])[2] == "reproduced: none of the 3 seeds left random play"
     assert judged([-20.9, -18.8, -20.1])[2] == "inconclusive: 1 of 3 seeds left random play"
     assert judged([-20.9, 5.0, -18.0])[2] == "inconclusive: 2 of 3 seeds left random play"
-    # a seed short of the steps: not judged on the others
-    assert judged([-13.1, -2.3, -8.5], steps=2_000_000)[2] == "not run yet"
-    assert "campaign item b-x, not finished" in judged([-13.1, -2.3, -8.5], steps=2_000_000)[0]
+    # a seed short of the steps: not judged on the two that reached them
+    rows = [("Pong", "vf1.0", 1, -13.1, 3_000_080), ("Pong", "vf1.0", 1001, -2.3, 3_000_080)]
+    write_figure(tmp_path / "fig", rows + [("Pong", "vf1.0", 2001, -19.5, 2_000_000)])
+    ours, effect, verdict = claims.evidence(claim)
+    assert verdict == "not run yet" and "campaign item b-x, not finished" in ours
     with pytest.raises(ValueError, match="expects random play"):
         claims.evidence({**claim, "expect": "worse"})
     # the forest plot leaves it off, and the caption counts it among the rows without a pair
