@@ -316,21 +316,23 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
     atari = {"figure": "fig", "game": "Pong", "steps": 3_000_000, "seeds": 3, "item": "b-x"}
     claim = {"atari": atari, "line": "vf1.0", "names": ["--vf-coef 1.0"],
              "expect": "random play", "command": "run it"}  # fmt: skip
+    edge = -20.7 + 0.05 * (14.6 - -20.7)  # Pong's random play plus 5% of human - random
 
-    # Pong: random play -20.7, human 14.6, so a run above -20.7 + 0.05 * 35.3 = -18.935 learned
     def judged(finals):
-        seeds = (1, 1001, 2001)
+        seeds = (1, 1001, 2001, 3001)[: len(finals)]
         rows = [("Pong", "vf1.0", s, f, 3_000_080) for s, f in zip(seeds, finals, strict=True)]
         rows += [("Pong", "vf0.5", seed, 15.0, 3_000_080) for seed in seeds]  # the other line
         write_figure(tmp_path / "fig", rows)
         return claims.evidence(claim)
 
     ours, effect, verdict = judged([-13.1, -2.3, -8.5])
-    assert (effect, verdict) == ("-", "contradicted: all 3 seeds left random play")
-    assert "-13.1, -2.3, -8.5" in ours and "random play -20.7" in ours and "-18.9" in ours
+    assert (effect, verdict) == ("-", "contradicted: 3 of 3 seeds left random play")
+    assert "-13.1, -2.3, -8.5; a run above -18.93 (random play, -20.7, plus 5%" in ours
     assert judged([-20.9, -19.0, -20.1])[2] == "reproduced: none of the 3 seeds left random play"
-    assert judged([-20.9, -18.8, -20.1])[2] == "inconclusive: 1 of 3 seeds left random play"
-    assert judged([-20.9, 5.0, -18.0])[2] == "inconclusive: 2 of 3 seeds left random play"
+    assert judged([-20.9, edge, -20.1])[2].startswith("reproduced")  # at the edge: not above it
+    assert judged([-20.9, -18.8, -20.1])[2] == "contradicted: 1 of 3 seeds left random play"
+    # the row's seeds only: a fourth seed that learned is not one of its 3
+    assert judged([-20.9, -19.0, -20.1, 5.0])[2].startswith("reproduced")
     # a seed short of the steps: not judged on the two that reached them
     rows = [("Pong", "vf1.0", 1, -13.1, 3_000_080), ("Pong", "vf1.0", 1001, -2.3, 3_000_080)]
     write_figure(tmp_path / "fig", rows + [("Pong", "vf1.0", 2001, -19.5, 2_000_000)])
@@ -338,10 +340,16 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
     assert verdict == "not run yet" and "campaign item b-x, not finished" in ours
     with pytest.raises(ValueError, match="expects random play"):
         claims.evidence({**claim, "expect": "worse"})
-    # the forest plot leaves it off, and the caption counts it among the rows without a pair
+    # the forest plot leaves it off; the caption counts it, by why, once judged
     row = {**claim, "claim": "c", "where": "Fig 6.10", "form": "as run", "thesis": "t"}
     data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}
+    assert "Left off: 1 not run yet (1 in A)." in claims.caption(data, [claims.evidence(row)])
     judged([-13.1, -2.3, -8.5])
     assert claims.forest_points(data) == []
     text = claims.caption(data, [claims.evidence(row)])
-    assert "Left off: 1 judged without a pair of lines (1 in A)." in text
+    assert "Left off: 1 judged seed by seed against random play (1 in A)." in text
+    # a game with no random and human scores: a clear error, not a verdict
+    write_figure(tmp_path / "fig", [("Tennis", "vf1.0", seed, -5.0, 3_000_080)
+                                    for seed in (1, 1001, 2001)])  # fmt: skip
+    with pytest.raises(ValueError, match="no random and human scores for Tennis"):
+        claims.evidence({**claim, "atari": {**atari, "game": "Tennis"}})
