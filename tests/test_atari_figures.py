@@ -12,6 +12,7 @@ import csv
 import json
 import math
 import shlex
+import shutil
 import textwrap
 from pathlib import Path
 
@@ -309,6 +310,39 @@ def test_curves_are_the_mean_and_standard_error_over_seeds(fake, tmp_path):
     with (out / "fig6.10" / "results.csv").open() as f:
         results = [(r["seed"], r["final_score"], r["final_step"]) for r in csv.DictReader(f)]
     assert results == [("1", "4", "2000000"), ("1001", "8", "2000000"), ("2001", "6", "1000000")]
+
+
+def test_a_line_whose_run_folders_are_gone_is_drawn_from_its_kept_evaluations(fake, tmp_path):
+    out = tmp_path / "out"
+    line = out / "fig6.10" / "Pong" / "vf0.5"
+    header = "global_step,wall_time_s,mean_return,std_return,episodes\n"
+    for index, values in {0: [0.0, 2.0], 1: [0.0, 4.0]}.items():
+        run = line / "runs" / f"run-{index:04d}"
+        run.mkdir(parents=True)
+        rows = [f"{step * 1000000},1.0,{v},0.0,10" for step, v in enumerate(values)]
+        (run / "evaluations.csv").write_text(header + "\n".join(rows) + "\n")
+    assert run_tool("fig6.10", "--out", str(out), "--plot-only").returncode == 0
+    drawn = {name: (out / "fig6.10" / name).read_text() for name in ("curves.csv", "results.csv")}
+    with (line / "evaluations.csv").open() as f:
+        kept = [(r["seed"], r["global_step"], r["mean_return"], r["episodes"])
+                for r in csv.DictReader(f)]  # fmt: skip
+    assert kept == [("1", "0", "0.0", "10"), ("1", "1000000", "2.0", "10"),
+                    ("1001", "0", "0.0", "10"), ("1001", "1000000", "4.0", "10")]  # fmt: skip
+    shutil.rmtree(line / "runs")  # a new checkout: the run folders are not committed
+    assert run_tool("fig6.10", "--out", str(out), "--plot-only").returncode == 0
+    assert {name: (out / "fig6.10" / name).read_text() for name in drawn} == drawn
+    # seed 1001 started again: its run folder takes the place of its kept rows
+    run = line / "runs" / "run-0001"
+    run.mkdir(parents=True)
+    (run / "evaluations.csv").write_text(header + "0,1.0,-1.0,0.0,10\n")
+    assert run_tool("fig6.10", "--out", str(out), "--plot-only").returncode == 0
+    with (out / "fig6.10" / "results.csv").open() as f:
+        results = [(r["seed"], r["final_score"], r["final_step"]) for r in csv.DictReader(f)]
+    assert results == [("1", "2", "1000000"), ("1001", "-1", "0")]
+    with (out / "fig6.10" / "curves.csv").open() as f:
+        assert [(r["step"], r["seeds"], r["mean"]) for r in csv.DictReader(f)] == [
+            ("0", "2", "-0.5")
+        ]
 
 
 def test_plot_only_without_runs_exits_1_and_draws_nothing(fake, tmp_path):

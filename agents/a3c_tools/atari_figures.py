@@ -42,7 +42,11 @@ values read off its figure (where the data file has them) are markers at the rig
 labelled "thesis, N M steps", and its statement is written under the panels. OUT/FIG/curves.csv
 holds the plotted values (figure, game, line, step, seeds, mean, se), OUT/FIG/results.csv a row
 per run (figure, game, line, seed, final_score, final_step). A figure is drawn after its runs,
-or from whatever runs exist with --plot-only.
+or from whatever runs exist with --plot-only. Each drawing also writes the line's every
+evaluation to OUT/FIG/GAME/LINE/evaluations.csv (seed, global_step, mean_return, episodes) and
+reads it back the next time: the run folders (runs/, with their checkpoints) are not committed,
+so a line whose run folders are gone is still drawn; a run folder, where there is one, takes the
+place of its seed's rows (it is the run that goes on).
 
 Exit codes: 0 when done, 1 when some line's every run failed, 2 for bad arguments, a malformed
 atari_figures.toml or a folder holding another configuration (nothing is created), 130 when
@@ -258,21 +262,44 @@ def run_figures(figures: list[Figure], options: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------------------
 # Drawing
 # ------------------------------------------------------------------------------------------------
-def read_runs(folder: Path, episodes: set[str] | None = None) -> dict[int, list[tuple[int, float]]]:
-    """A line's runs: seed -> [(step, mean return)], from OUT/.../runs/run-*/evaluations.csv;
-    the seed is sweep.py's for run i (1 + 1000 i). Adds the episodes per evaluation to
-    episodes."""
-    runs = {}
+KEPT = "evaluations.csv"  # a line's every evaluation; its run folders (runs/) are not committed
+KEPT_COLUMNS = ["seed", "global_step", "mean_return", "episodes"]
+
+
+def read_tables(folder: Path) -> dict[int, list[dict[str, str]]]:
+    """seed -> a line's evaluations (KEPT_COLUMNS), from its kept evaluations.csv, each run folder's
+    runs/run-*/evaluations.csv in place of its seed's rows; run i has sweep.py's seed 1 + 1000 i."""
+    tables: dict[int, list[dict[str, str]]] = {}
+    if (folder / KEPT).exists():
+        with (folder / KEPT).open(newline="") as f:
+            for row in csv.DictReader(f):
+                tables.setdefault(int(row["seed"]), []).append(row)
     for path in sorted((folder / "runs").glob("run-*/evaluations.csv")):
-        index = int(path.parent.name.removeprefix("run-"))
+        seed = SEED + 1000 * int(path.parent.name.removeprefix("run-"))
         with path.open(newline="") as f:
-            table = list(csv.DictReader(f))
+            table = [{**row, "seed": str(seed)} for row in csv.DictReader(f)]
         if table:
-            runs[SEED + 1000 * index] = [
-                (int(r["global_step"]), float(r["mean_return"])) for r in table
-            ]
-            if episodes is not None:
-                episodes.update(r.get("episodes") or "?" for r in table)
+            tables[seed] = table
+    return dict(sorted(tables.items()))
+
+
+def keep_tables(folder: Path, tables: dict[int, list[dict[str, str]]]) -> None:
+    """Write a line's evaluations to its kept evaluations.csv (all at once: a full disk leaves the
+    old file whole)."""
+    rows = [[row.get(c) or "" for c in KEPT_COLUMNS] for table in tables.values() for row in table]
+    partial = folder / f"{KEPT}.partial"
+    write_csv(partial, KEPT_COLUMNS, rows)
+    partial.replace(folder / KEPT)
+
+
+def read_runs(folder: Path, episodes: set[str] | None = None) -> dict[int, list[tuple[int, float]]]:
+    """A line's runs: seed -> [(step, mean return)] (read_tables). Adds the episodes per
+    evaluation to episodes."""
+    runs = {}
+    for seed, table in read_tables(folder).items():
+        runs[seed] = [(int(r["global_step"]), float(r["mean_return"])) for r in table]
+        if episodes is not None:
+            episodes.update(r.get("episodes") or "?" for r in table)
     return runs
 
 
@@ -312,6 +339,11 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
     if not any(found.values()):
         print(f"{figure.id}: no runs in {display(out)}; not drawn", file=sys.stderr)
         return None
+    for game in games:
+        for line in lines:
+            folder = line_folder(Path(options.out), figure, game, line)
+            if found[game, line.slug]:
+                keep_tables(folder, read_tables(folder))
     out.mkdir(parents=True, exist_ok=True)
     results, curves = [], []
     fig, axes = plt.subplots(1, len(games), figsize=(6.4 * len(games), 4.8), squeeze=False)
