@@ -383,8 +383,12 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
         ax.set_xlabel("steps (millions)")
         ax.set_ylabel("mean score per evaluation")
         ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:  # a game with no runs yet has no line to name
+        if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
+            if top == 0:  # step 0 alone: matplotlib would span +-0.04 M steps around it
+                ax.set_xlim(-0.05, 1.1)  # the thesis markers sit at 1.03 to 1.07
+        else:
+            ax.text(0.5, 0.5, "no runs yet", transform=ax.transAxes, ha="center", color="grey")
     title = textwrap.wrap(  # one panel holds about 80 characters of the title's size
         f"Thesis Figure {figure.id.removeprefix('fig')}: the mean over seeds, shaded +- one "
         f"standard error over seeds; {'/'.join(sorted(episodes))} episodes per evaluation (the "
