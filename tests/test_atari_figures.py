@@ -334,8 +334,12 @@ def test_a_line_whose_run_folders_are_gone_is_drawn_from_its_kept_evaluations(fa
     # seed 1001 started again: its run folder takes the place of its kept rows
     run = line / "runs" / "run-0001"
     run.mkdir(parents=True)
+    (run / "evaluations.csv").write_text(header)  # begun, no evaluation yet: the kept rows stay
+    assert run_tool("fig6.10", "--out", str(out), "--plot-only").returncode == 0
+    assert {name: (out / "fig6.10" / name).read_text() for name in drawn} == drawn
     (run / "evaluations.csv").write_text(header + "0,1.0,-1.0,0.0,10\n")
     assert run_tool("fig6.10", "--out", str(out), "--plot-only").returncode == 0
+    assert sorted(p.name for p in line.iterdir()) == ["evaluations.csv", "runs"]  # no temp file
     with (out / "fig6.10" / "results.csv").open() as f:
         results = [(r["seed"], r["final_score"], r["final_step"]) for r in csv.DictReader(f)]
     assert results == [("1", "2", "1000000"), ("1001", "-1", "0")]
@@ -343,6 +347,19 @@ def test_a_line_whose_run_folders_are_gone_is_drawn_from_its_kept_evaluations(fa
         assert [(r["step"], r["seeds"], r["mean"]) for r in csv.DictReader(f)] == [
             ("0", "2", "-0.5")
         ]
+
+
+def test_a_malformed_kept_evaluations_file_exits_2_with_one_line(fake, tmp_path):
+    line = tmp_path / "out" / "fig6.10" / "Pong" / "vf0.5"
+    line.mkdir(parents=True)
+    kept = "seed,global_step,mean_return,episodes\n1,0,0.5,10\n"
+    (line / "evaluations.csv").write_text(kept + "<<<<<<< HEAD\n")  # a merge left half done
+    result = run_tool("fig6.10", "--out", str(tmp_path / "out"), "--plot-only")
+    errors = [row for row in result.stderr.splitlines() if row.strip()]
+    assert result.returncode == 2
+    assert len(errors) == 1 and "evaluations.csv is malformed" in errors[0], errors
+    assert (line / "evaluations.csv").read_text() == kept + "<<<<<<< HEAD\n"
+    assert not (tmp_path / "out" / "fig6.10" / "fig6.10.png").exists()
 
 
 def test_plot_only_without_runs_exits_1_and_draws_nothing(fake, tmp_path):

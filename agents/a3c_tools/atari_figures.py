@@ -45,7 +45,7 @@ per run (figure, game, line, seed, final_score, final_step). A figure is drawn a
 or from whatever runs exist with --plot-only. Each drawing also writes the line's every
 evaluation to OUT/FIG/GAME/LINE/evaluations.csv (seed, global_step, mean_return, episodes) and
 reads it back the next time: the run folders (runs/, with their checkpoints) are not committed,
-so a line whose run folders are gone is still drawn; a run folder, where there is one, takes the
+so a line whose run folders are gone is still drawn; a run folder with an evaluation takes the
 place of its seed's rows (it is the run that goes on).
 
 Exit codes: 0 when done, 1 when some line's every run failed, 2 for bad arguments, a malformed
@@ -59,6 +59,7 @@ import argparse
 import csv
 import functools
 import math
+import os
 import shlex
 import sys
 import textwrap
@@ -267,13 +268,20 @@ KEPT_COLUMNS = ["seed", "global_step", "mean_return", "episodes"]
 
 
 def read_tables(folder: Path) -> dict[int, list[dict[str, str]]]:
-    """seed -> a line's evaluations (KEPT_COLUMNS), from its kept evaluations.csv, each run folder's
-    runs/run-*/evaluations.csv in place of its seed's rows; run i has sweep.py's seed 1 + 1000 i."""
+    """seed -> a line's evaluations (KEPT_COLUMNS): its kept evaluations.csv, and each run folder
+    with an evaluation (runs/run-*/evaluations.csv) in place of its seed's rows; run i has
+    sweep.py's seed 1 + 1000 i. A DataError (one line) where the kept file is malformed."""
     tables: dict[int, list[dict[str, str]]] = {}
-    if (folder / KEPT).exists():
-        with (folder / KEPT).open(newline="") as f:
-            for row in csv.DictReader(f):
-                tables.setdefault(int(row["seed"]), []).append(row)
+    kept = folder / KEPT
+    if kept.exists():
+        with kept.open(newline="") as f:
+            try:
+                for row in csv.DictReader(f):
+                    _ = int(row["global_step"]), float(row["mean_return"])  # or the file's error
+                    tables.setdefault(int(row["seed"]), []).append(row)
+            except (KeyError, TypeError, ValueError) as error:
+                raise DataError(f"{display(kept)} is malformed ({error!r}); "
+                                f"columns: {', '.join(KEPT_COLUMNS)}") from error  # fmt: skip
     for path in sorted((folder / "runs").glob("run-*/evaluations.csv")):
         seed = SEED + 1000 * int(path.parent.name.removeprefix("run-"))
         with path.open(newline="") as f:
@@ -284,23 +292,39 @@ def read_tables(folder: Path) -> dict[int, list[dict[str, str]]]:
 
 
 def keep_tables(folder: Path, tables: dict[int, list[dict[str, str]]]) -> None:
-    """Write a line's evaluations to its kept evaluations.csv (all at once: a full disk leaves the
-    old file whole)."""
-    rows = [[row.get(c) or "" for c in KEPT_COLUMNS] for table in tables.values() for row in table]
-    partial = folder / f"{KEPT}.partial"
-    write_csv(partial, KEPT_COLUMNS, rows)
-    partial.replace(folder / KEPT)
+    """Write a line's evaluations to its kept evaluations.csv, all or nothing: a temp file of
+    this process's own, flushed to disk, renamed over it (a full disk leaves the old file whole
+    and raises the OSError)."""
+    partial = folder / f"{KEPT}.{os.getpid()}.partial"
+    try:
+        with partial.open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(KEPT_COLUMNS)
+            writer.writerows([row.get(c) or "" for c in KEPT_COLUMNS]
+                             for table in tables.values() for row in table)  # fmt: skip
+            f.flush()
+            os.fsync(f.fileno())
+        partial.replace(folder / KEPT)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
-def read_runs(folder: Path, episodes: set[str] | None = None) -> dict[int, list[tuple[int, float]]]:
-    """A line's runs: seed -> [(step, mean return)] (read_tables). Adds the episodes per
-    evaluation to episodes."""
+def runs_of(
+    tables: dict[int, list[dict[str, str]]], episodes: set[str] | None = None
+) -> dict[int, list[tuple[int, float]]]:
+    """seed -> [(step, mean return)] of a line's tables. Adds the episodes per evaluation to
+    episodes."""
     runs = {}
-    for seed, table in read_tables(folder).items():
+    for seed, table in tables.items():
         runs[seed] = [(int(r["global_step"]), float(r["mean_return"])) for r in table]
         if episodes is not None:
             episodes.update(r.get("episodes") or "?" for r in table)
     return runs
+
+
+def read_runs(folder: Path, episodes: set[str] | None = None) -> dict[int, list[tuple[int, float]]]:
+    """A line's runs: seed -> [(step, mean return)] (read_tables)."""
+    return runs_of(read_tables(folder), episodes)
 
 
 def curve(runs: dict[int, list[tuple[int, float]]]) -> list[tuple[int, int, float, float]]:
@@ -331,19 +355,16 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
     out = Path(options.out) / figure.id
     games, lines = selected(figure, options)
     episodes: set[str] = set()
-    found = {
-        (game, line.slug): read_runs(line_folder(Path(options.out), figure, game, line), episodes)
-        for game in games
-        for line in lines
-    }
-    if not any(found.values()):
+    folders = {(g, line.slug): line_folder(Path(options.out), figure, g, line)
+               for g in games for line in lines}  # fmt: skip
+    tables = {key: read_tables(folder) for key, folder in folders.items()}
+    if not any(tables.values()):
         print(f"{figure.id}: no runs in {display(out)}; not drawn", file=sys.stderr)
         return None
-    for game in games:
-        for line in lines:
-            folder = line_folder(Path(options.out), figure, game, line)
-            if found[game, line.slug]:
-                keep_tables(folder, read_tables(folder))
+    for key, folder in folders.items():
+        if tables[key]:
+            keep_tables(folder, tables[key])
+    found = {key: runs_of(table, episodes) for key, table in tables.items()}
     out.mkdir(parents=True, exist_ok=True)
     results, curves = [], []
     fig, axes = plt.subplots(1, len(games), figsize=(6.4 * len(games), 4.8), squeeze=False)
@@ -385,10 +406,10 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
-            if top == 0:  # step 0 alone: matplotlib would span +-0.04 M steps around it
-                ax.set_xlim(-0.05, 1.1)  # the thesis markers sit at 1.03 to 1.07
-        else:
+        if not any(found[game, line.slug] for line in lines):
             ax.text(0.5, 0.5, "no runs yet", transform=ax.transAxes, ha="center", color="grey")
+        if top == 0:  # step 0 or nothing: matplotlib would span +-0.04 M steps around it
+            ax.set_xlim(-0.05, 1.1)  # the thesis's markers sit at 1.03 to 1.07
     title = textwrap.wrap(  # one panel holds about 80 characters of the title's size
         f"Thesis Figure {figure.id.removeprefix('fig')}: the mean over seeds, shaded +- one "
         f"standard error over seeds; {'/'.join(sorted(episodes))} episodes per evaluation (the "
@@ -519,7 +540,14 @@ def main(argv: list[str] | None = None) -> int:
     options = parse_args(sys.argv[1:] if argv is None else argv)
     figures = [by_id(i) for i in options.ids] if options.ids else list(data().figures)
     if options.plot_only and not options.list:
-        drawn = [draw(figure, options) for figure in figures]
+        try:
+            drawn = [draw(figure, options) for figure in figures]
+        except DataError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        except OSError as error:  # a full disk, say: keep_tables left every kept file whole
+            print(f"error: {error}; the kept evaluations.csv files are unchanged", file=sys.stderr)
+            return 1
         return 0 if any(drawn) else 1
     return figure_sweeps.run_command(
         options, figures, list_figures, dry_run, "(the runs above)", run_figures
