@@ -322,11 +322,6 @@ def runs_of(
     return runs
 
 
-def read_runs(folder: Path, episodes: set[str] | None = None) -> dict[int, list[tuple[int, float]]]:
-    """A line's runs: seed -> [(step, mean return)] (read_tables)."""
-    return runs_of(read_tables(folder), episodes)
-
-
 def curve(runs: dict[int, list[tuple[int, float]]]) -> list[tuple[int, int, float, float]]:
     """(step, seeds, mean, standard error) at each step every run has reached."""
     by_step: dict[int, list[float]] = {}
