@@ -1,5 +1,6 @@
 """Repository-level promises: the README's commands, lint, and catch_env without torch."""
 
+import importlib.util
 import re
 import shutil
 import subprocess
@@ -143,3 +144,21 @@ def test_every_docs_page_is_in_the_mkdocs_nav():
     pages = {path.relative_to(DOCS).as_posix() for path in docs_pages()}
     assert pages - nav == set(), f"docs pages missing from mkdocs.yml's nav: {pages - nav}"
     assert nav - pages == set(), f"mkdocs.yml's nav names pages that are not here: {nav - pages}"
+
+
+def test_the_site_home_opens_with_the_readmes_opening_linked_from_docs():
+    """docs/index.md says the README's opening once, through the hook: the hook puts it in the
+    marker's place, with every link rewritten to name a file from docs/."""
+    spec = importlib.util.spec_from_file_location(
+        "readme_opening", ROOT / "docs" / "hooks" / "readme_opening.py"
+    )
+    hook = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hook)
+    readme = (ROOT / "README.md").read_text()
+    opening = hook.readme_opening(readme)
+    assert hook.MARKER in (ROOT / "docs" / "index.md").read_text()
+    assert readme_commands()[0] in opening and "## " not in opening
+    links = relative_links(opening)
+    assert links and all(not link.startswith(("docs/", "results/")) for link in links)
+    missing = [link for link in links if not (ROOT / "docs" / link).resolve().exists()]
+    assert not missing, f"the home page's opening links to files that are not here: {missing}"
