@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -146,19 +147,38 @@ def test_every_docs_page_is_in_the_mkdocs_nav():
     assert nav - pages == set(), f"mkdocs.yml's nav names pages that are not here: {nav - pages}"
 
 
-def test_the_site_home_opens_with_the_readmes_opening_linked_from_docs():
-    """docs/index.md says the README's opening once, through the hook: the hook puts it in the
-    marker's place, with every link rewritten to name a file from docs/."""
+def load_readme_opening_hook():
     spec = importlib.util.spec_from_file_location(
         "readme_opening", ROOT / "docs" / "hooks" / "readme_opening.py"
     )
     hook = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(hook)
-    readme = (ROOT / "README.md").read_text()
-    opening = hook.readme_opening(readme)
-    assert hook.MARKER in (ROOT / "docs" / "index.md").read_text()
-    assert readme_commands()[0] in opening and "## " not in opening
+    return hook
+
+
+def test_the_site_home_opens_with_the_readmes_opening_linked_from_docs():
+    """docs/index.md says the README's opening once, through the hook that mkdocs.yml names: the
+    hook puts it in the marker's place, whole fences and all, with every link rewritten to name
+    a file from docs/."""
+    hook = load_readme_opening_hook()
+    mkdocs_yml = (ROOT / "mkdocs.yml").read_text()
+    assert re.search(r"^hooks:\n(  - .*\n)*  - docs/hooks/readme_opening\.py$", mkdocs_yml, re.M)
+    config = SimpleNamespace(config_file_path=str(ROOT / "mkdocs.yml"))
+    home = hook.on_page_markdown((ROOT / "docs" / "index.md").read_text(), None, config, None)
+    assert hook.MARKER not in home and readme_commands()[0] in home
+    opening = hook.readme_opening((ROOT / "README.md").read_text())
+    assert opening in home and "\n## " not in opening and opening.count("```") % 2 == 0
     links = relative_links(opening)
     assert links and all(not link.startswith(("docs/", "results/")) for link in links)
     missing = [link for link in links if not (ROOT / "docs" / link).resolve().exists()]
     assert not missing, f"the home page's opening links to files that are not here: {missing}"
+
+
+def test_the_readmes_opening_ends_at_a_heading_outside_code_blocks():
+    hook = load_readme_opening_hook()
+    readme = (
+        "# Title\n\n```bash\n## a shell comment\nls\n```\n\nSee [it](docs/a.md).\n\n## Next\nrest\n"
+    )
+    assert hook.readme_opening(readme) == "```bash\n## a shell comment\nls\n```\n\nSee [it](a.md)."
+    with pytest.raises(ValueError, match="title"):
+        hook.readme_opening("no title\n")
