@@ -441,23 +441,3 @@ def test_data_init_end_to_end(tmp_path, monkeypatch, capsys):
     code, err = main_exit(load_script(name), [*TINY, *budget], monkeypatch, capsys)
     assert code == 0, err
     assert evaluation_steps(tmp_path)[-1] >= 2000
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["a3c_lpq_growth", "a3c_glpq_growth"])
-def test_prototype_growth_end_to_end(tmp_path, monkeypatch, capsys, name):
-    flags = ["--growth-interval", "500", "--growth-ratio", "1e-6"]
-    budget = ["--total-timesteps", "2000", "--eval-interval", "1000", "--run-dir", str(tmp_path)]
-    module = load_script(name)
-    code, _ = main_exit(module, [*TINY, *budget, *flags], monkeypatch, capsys)
-    assert code == 0
-    assert evaluation_steps(tmp_path)[-1] >= 2000
-    # the checkpoint holds the last growth step; a resumed run goes on from the next one
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
-    done = int(checkpoint["model"]["growth_round"])
-    assert done == checkpoint["global_step"] // 500 >= 4
-    resume = ["--resume", str(tmp_path / "checkpoint.pt"), "--total-timesteps", "3000"]
-    code, _ = main_exit(module, resume, monkeypatch, capsys)
-    assert code == 0
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
-    assert int(checkpoint["model"]["growth_round"]) == 6  # 2,500 and 3,000
