@@ -150,13 +150,14 @@ def test_a3c_step_profile_reports_every_phase(monkeypatch, capsys):
 
 @pytest.mark.slow
 def test_fault_injection_resumes_runs_without_losing_a_checkpoint(monkeypatch, capsys):
+    # one trial, the hardest fault: each fault's own run is tested in test_runtime_a3c.py
     result = run(
-        "fault_injection.py", "--trials", "2", "--total-timesteps", "20000",
-        "--faults", "SIGKILL main", "SIGTERM", monkeypatch=monkeypatch, capsys=capsys,
+        "fault_injection.py", "--trials", "1", "--total-timesteps", "20000",
+        "--faults", "SIGKILL main", monkeypatch=monkeypatch, capsys=capsys,
     )  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
     assert (
-        "faults survived 2/2; checkpoints lost or unloadable 0; partial files 0; orphan "
+        "faults survived 1/1; checkpoints lost or unloadable 0; partial files 0; orphan "
         "processes 0" in result.stdout
     )
 
