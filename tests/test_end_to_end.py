@@ -1,10 +1,10 @@
 """End to end, in process: one whole run (train(): two forked workers and the evaluator) per
 distinct worker loop, and one on Atari. Each asserts what the run must show: the target step
 reached, an evaluation at each step the flags ask for, and a final checkpoint that loads into a
-fresh network and gives the action probabilities of the network that wrote it; the growth
-scripts' runs also resume from their last growth step. The scripts that
-share a loop (LWS, SS, WW, LPQ and chapter 8's value-head, data-init and online-LWS scripts run
-FF's) are tested in process by tests/test_workers.py."""
+fresh network and gives the action probabilities of the network that wrote it; the growth scripts'
+runs also resume from their last growth round. The scripts that share a loop (LWS, SS, WW, LPQ and
+chapter 8's value-head, data-init and online-LWS scripts run FF's) are tested in process by
+tests/test_workers.py."""
 
 import copy
 
