@@ -70,8 +70,8 @@ class Args:
     it (twice code's value gradient at the same vf_coef)"""
     precision: Literal["auto", "fp32", "bf16", "bf16-learn"] = "auto"
     """the workers' network passes: fp32; bf16: acting and learning under bfloat16 CPU autocast;
-    bf16-learn: acting (and so the forward values the loss replays) in fp32, the learning pass's
-    gradients in bf16. Weights, optimizer statistics, returns and the loss stay float32; the
+    bf16-learn: acting in fp32, the learning pass (its forward computed again, and its
+    gradients) in bf16. Weights, optimizer statistics, returns and the loss stay float32; the
     evaluator and --evaluate play in fp32. auto, on a CPU with native bf16: bf16 with K > 1 envs
     per worker, bf16-learn with K = 1 (a forward over one state is faster in fp32); fp32
     elsewhere (results/precision_catch, results/throughput_batched). The thesis ran fp32"""

@@ -42,7 +42,8 @@ def test_the_figures_games_and_lines():
                      "fig7.8": ("Breakout", "BeamRider")}  # fmt: skip
     slugs = {figure.id: [line.slug for line in figure.lines] for figure in figures.data().figures}
     assert slugs == {"fig6.9": ["ff", "lws", "ww"], "fig6.10": ["vf1.0", "vf0.5"],
-                     "fig7.8": ["ff", "lpq", "lpq_fig78", "glpq", "glpq_fig78"]}  # fmt: skip
+                     "fig7.8": ["ff", "lpq", "lpq_fig78", "glpq", "glpq_fig78",
+                                "glpq_as_run"]}  # fmt: skip
     assert figures.data().common == COMMON
     assert figures.by_id("fig7.8").lines[0].same_as == "fig6.9/ff"
 
@@ -124,7 +125,7 @@ def test_every_line_is_accepted_by_its_script(capsys):
                 code = sweep.main([*command[: command.index("--")], "--dry-run",
                                    *command[command.index("--") :]])  # fmt: skip
                 assert code == 0, (figure.id, game, line.slug, capsys.readouterr().err)
-    assert len(seen) == 2 * 3 + 2 + 2 * 4  # FF of 7.8 is 6.9's
+    assert len(seen) == 2 * 3 + 2 + 2 * 5  # FF of 7.8 is 6.9's
 
 
 # ------------------------------------------------------------------------------------------------
