@@ -85,6 +85,10 @@ class Args:
     """Adam's first-moment decay beta1"""
     adam_beta2: float = 0.99
     """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
+    adam_epsilon_form: Literal["text", "code"] = "text"
+    """Adam's epsilon: text, m_hat / sqrt(v_hat + eps) (eq. A.5); code, as the thesis's runs
+    computed it (the bias correction folded into the learning rate), eps / (1 - beta2^t) in place
+    of eps: 1000 eps at the first update with beta2 0.999, near eps after some 5,000"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
     rms_init: float = 0.0
@@ -122,9 +126,10 @@ class Args:
     """the distance d(h, w) (thesis 7.2.1)"""
     competition_size: Annotated[int | None, default_text("all")] = None
     """k: only the k nearest prototypes of each action compete (eq. 7.11)"""
-    prototype_init: Literal["uniform", "uniform-clipped"] = "uniform"
-    """prototypes U(-b, b); uniform-clipped: then negatives set to 0, as the ReLU features are
-    (our reading of the thesis's unexplained 'zero clipping', figure C.1)"""
+    prototype_init: Literal["uniform", "uniform-positive", "uniform-clipped"] = "uniform"
+    """prototypes U(-b, b); uniform-positive: U(0, b), the thesis code's option (zpi);
+    uniform-clipped: U(-b, b) with negatives set to 0, as the ReLU features are (our reading of
+    the thesis's unexplained 'zero clipping', figure C.1)"""
     prototype_init_bound: float = 1 / 16
     """the bound b of the prototype initialisation"""
 
@@ -291,7 +296,8 @@ class ActorCritic(nn.Module):
         self.prototypes = nn.Parameter(torch.empty(num_actions * per_action, 256))
         bound = args.prototype_init_bound
         with torch.no_grad():
-            self.prototypes.uniform_(-bound, bound)
+            low = 0.0 if args.prototype_init == "uniform-positive" else -bound
+            self.prototypes.uniform_(low, bound)
             if args.prototype_init == "uniform-clipped":
                 self.prototypes.clamp_(min=0.0)
 

@@ -87,6 +87,10 @@ class Args:
     """Adam's first-moment decay beta1"""
     adam_beta2: float = 0.99
     """Adam's second-moment decay beta2 (thesis A.1.2 says 0.99; the thesis's runs used 0.999)"""
+    adam_epsilon_form: Literal["text", "code"] = "text"
+    """Adam's epsilon: text, m_hat / sqrt(v_hat + eps) (eq. A.5); code, as the thesis's runs
+    computed it (the bias correction folded into the learning rate), eps / (1 - beta2^t) in place
+    of eps: 1000 eps at the first update with beta2 0.999, near eps after some 5,000"""
     optim_eps: float = 0.1
     """the optimizer epsilon, inside the square root: g / sqrt(ms + eps)"""
     rms_init: float = 0.0

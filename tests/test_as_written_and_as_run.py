@@ -11,6 +11,7 @@ import ast
 import contextlib
 import dataclasses
 import io
+import math
 import os
 import re
 import shlex
@@ -260,16 +261,18 @@ def check_conv_layout() -> None:
 
 
 def check_ss_temperature() -> None:
-    """A trainable tau per map by default; one global (--ss-temperature global), fixed
-    (--no-ss-trainable-temperature) as the runs' labels had them."""
-    per_map = network("a3c_ss")
-    temperature = dict(per_map.named_parameters())
-    (name,) = [n for n in temperature if n.endswith("temperature")]
-    assert temperature[name].numel() > 1
+    """A trainable tau per map by default, in SS and WW; one global (--ss-temperature global),
+    fixed (--no-ss-trainable-temperature) as the runs' labels had them; WW's global tau as run."""
+    for script, maps in (("a3c_ss", 64), ("a3c_ww", 32)):
+        temperatures = dict(network(script).named_parameters())
+        (name,) = [n for n in temperatures if n.endswith("temperature")]
+        assert temperatures[name].numel() == maps
     fixed = network("a3c_ss", "--ss-temperature", "global", "--no-ss-trainable-temperature")
     assert not [n for n, _ in fixed.named_parameters() if n.endswith("temperature")]
     (buffer,) = [b for n, b in fixed.named_buffers() if n.endswith("temperature")]
     assert buffer.numel() == 1
+    ww = dict(network("a3c_ww", "--ss-temperature", "global").named_parameters())
+    assert [p.numel() for n, p in ww.items() if n.endswith("temperature")] == [1]
 
 
 def check_lws() -> None:
@@ -312,6 +315,28 @@ def check_adam_beta2() -> None:
         assert make_optimizer(params, args).beta2 == beta2
 
 
+def check_adam_epsilon() -> None:
+    """Eq. A.5's eps by default; --adam-epsilon-form code, the thesis code's update
+    lr sqrt(1 - beta2^t) / (1 - beta1^t) m / sqrt(v + eps), over two steps."""
+    from a3c_runtime.hogwild import make_optimizer
+
+    lr, eps, beta1, beta2 = 0.1, 0.1, 0.9, 0.999
+    for argv, form in (([], "text"), (["--adam-epsilon-form", "code"], "code")):
+        args = parse(["--optimizer", "adam", "--adam-beta2", "0.999", *argv])[1]
+        param = torch.tensor([1.0])
+        optimizer = make_optimizer([param], args)
+        expected, m, v = 1.0, 0.0, 0.0
+        for t, g in ((1, 2.0), (2, -1.0)):
+            optimizer.step([torch.tensor([g])], lr=lr)
+            m, v = beta1 * m + (1 - beta1) * g, beta2 * v + (1 - beta2) * g * g
+            m_hat, v_hat = m / (1 - beta1**t), v / (1 - beta2**t)
+            if form == "text":
+                expected -= lr * m_hat / math.sqrt(v_hat + eps)
+            else:
+                expected -= lr * math.sqrt(1 - beta2**t) / (1 - beta1**t) * m / math.sqrt(v + eps)
+            assert param.item() == pytest.approx(expected, rel=1e-6), (form, t)
+
+
 def check_vf_coef() -> None:
     """lambda_V 0.5 by default; --vf-coef 1.0 doubles the value loss's part of the loss."""
     ff = load_script("a3c_ff")
@@ -334,10 +359,11 @@ THE_TEXT = {
     "GLPQ's 1/tau loss correction": check_tau_loss_scope,
     "GLPQ's trainable tau": check_tau_parametrization,
     "SS and WW convolutions": check_conv_layout,
-    "SS temperature labels": check_ss_temperature,
+    "SS and WW temperatures": check_ss_temperature,
     "LWS layers": check_lws,
     "global-norm clipping bound": check_global_norm,
     "Adam's beta2": check_adam_beta2,
+    "Adam's epsilon": check_adam_epsilon,
     "value loss factor": check_vf_coef,
 }
 

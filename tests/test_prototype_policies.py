@@ -114,16 +114,35 @@ def test_euclidean_gradient_is_finite_at_zero_distance(lpq):
 # The heads: pi is a distribution; LPQ generalises softmax; Theorem 1
 # ---------------------------------------------------------------------------------------------
 def configurations(module, name):
-    """Every distance, competition size (1, 3, all of 4) and temperature; the two prototype
+    """Every distance, competition size (1, 3, all of 4) and temperature; the three prototype
     initialisations take turns."""
     distances = list(EXPECTED) if name == "lpq" else list(EXPECTED)[:-1]
     temperatures = [None] if name == "lpq" else ["fixed", "cold", "hot", "searing", "trainable"]
     grid = itertools.product(distances, [1, 3, None], temperatures)
     for i, (distance, k, temperature) in enumerate(grid):
         extra = {} if temperature is None else {"temperature": temperature, "tau": 2.0}
-        init = ["uniform", "uniform-clipped"][i % 2]
+        init = ["uniform", "uniform-clipped", "uniform-positive"][i % 3]
         yield module.Args(prototypes_per_action=4, distance=distance, competition_size=k,
                           prototype_init=init, **extra)  # fmt: skip
+
+
+@pytest.mark.parametrize("name", ["lpq", "glpq"])
+def test_the_prototype_initialisations(lpq, glpq, name):
+    """U(-b, b); U(0, b), the thesis code's option; U(-b, b) with its negatives set to 0."""
+    module = both(lpq, glpq)[name]
+    b = 0.25
+    drawn = {}
+    for init in ("uniform", "uniform-positive", "uniform-clipped"):
+        torch.manual_seed(0)
+        args = module.Args(prototype_init=init, prototype_init_bound=b)
+        drawn[init] = module.ActorCritic(3, args).prototypes.detach()
+    uniform, positive, clipped = drawn.values()
+    assert -b <= uniform.min() < -0.99 * b and 0.99 * b < uniform.max() <= b
+    assert 0 < positive.min() < 0.01 * b and 0.99 * b < positive.max() <= b
+    assert positive.mean().item() == pytest.approx(b / 2, rel=0.02)
+    # the same draws: clipping keeps uniform's non-negative entries and zeroes the others
+    torch.testing.assert_close(clipped, uniform.clamp(min=0.0))
+    assert (clipped == 0).float().mean().item() == pytest.approx(0.5, abs=0.02)
 
 
 @pytest.mark.parametrize("name", ["lpq", "glpq"])

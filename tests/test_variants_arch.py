@@ -343,7 +343,7 @@ def test_lws_padding_and_second_layer_maps_shape_the_network(lws, padding, sizes
     hidden = net.torso[:2](x.float())
     assert hidden.shape == (2, 32, sizes[0], sizes[0])
     assert net.torso[2](hidden).shape == (2, maps, sizes[1], sizes[1])
-    assert net.torso[5].in_features == maps * sizes[1] ** 2  # as run: 11 * 11 * 64 = 7,744
+    assert net.torso[5].in_features == maps * sizes[1] ** 2  # as run: 11 * 11 * 32 = 3,872
     log_probs, values = net(x)
     assert torch.isfinite(log_probs).all() and torch.isfinite(values).all()
     torch.testing.assert_close(log_probs.exp().sum(1), torch.ones(2))

@@ -149,10 +149,20 @@ class SharedRMSprop:
 
 
 class SharedAdam:
-    """Adam with shared moments and step count (thesis A.1.2, eqs. A.1-A.5; eps inside the root)."""
+    """Adam with shared moments and step count (thesis A.1.2, eqs. A.1-A.5; eps inside the root).
+    epsilon_form "code" is the thesis code's update, lr sqrt(1 - beta2^t) / (1 - beta1^t) m /
+    sqrt(v + eps): eq. A.5 with eps / (1 - beta2^t) in place of eps."""
 
-    def __init__(self, params: list[torch.Tensor], beta1: float, beta2: float, eps: float):
+    def __init__(
+        self,
+        params: list[torch.Tensor],
+        beta1: float,
+        beta2: float,
+        eps: float,
+        epsilon_form: str = "text",
+    ):
         self.params, self.beta1, self.beta2, self.eps = params, beta1, beta2, eps
+        self.epsilon_form = epsilon_form
         self.exp_avg = [torch.zeros_like(p).share_memory_() for p in params]
         self.exp_avg_sq = [torch.zeros_like(p).share_memory_() for p in params]
         self.step_count = torch.zeros(1, dtype=torch.float64).share_memory_()
@@ -165,7 +175,8 @@ class SharedAdam:
         torch._foreach_mul_(self.exp_avg_sq, self.beta2)
         torch._foreach_addcmul_(self.exp_avg_sq, grads, grads, value=1.0 - self.beta2)
         inv_rms = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
-        torch._foreach_add_(inv_rms, self.eps)
+        eps = self.eps if self.epsilon_form == "text" else self.eps / (1.0 - self.beta2**t)
+        torch._foreach_add_(inv_rms, eps)
         torch._foreach_pow_(inv_rms, -0.5)  # as SharedRMSprop's
         torch._foreach_addcmul_(
             self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)
@@ -187,7 +198,8 @@ class SharedAdam:
 
 def make_optimizer(params: list[torch.Tensor], args: Any) -> SharedRMSprop | SharedAdam:
     if args.optimizer == "adam":
-        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps)
+        form = getattr(args, "adam_epsilon_form", "text")
+        return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps, form)
     return SharedRMSprop(params, args.rms_decay, args.optim_eps, getattr(args, "rms_init", 0.0))
 
 
