@@ -64,12 +64,14 @@ def test_weight_init_schemes(a3c):
 @pytest.mark.parametrize("name", ALL_SCRIPTS)
 @pytest.mark.parametrize(
     ("scheme", "bias"),
-    [("torch", None), ("torch", 0.01), ("he", None), ("he", 0.01), ("uniform-sqrt3", None)],
-)
+    [("torch", None), ("torch", 0.01), ("he", None), ("he", 0.01), ("variance-scaling", None),
+     ("uniform-sqrt3", None)],
+)  # fmt: skip
 def test_every_scripts_init_gives_each_layer_its_schemes_weights(name, scheme, bias):
     """Each script's own copy of init_parameters (the thesis 6.3.3 schemes, A.1.3's biases) on a
     conv and a linear layer, by their fan-in: He's N(0, 2 / fan_in) truncated at 2 sigma (std
-    0.88 sigma), U(+-sqrt(3 / fan_in)), or torch's default left as it is."""
+    0.88 sigma); TensorFlow's variance scaling, N(0, 2.6 / fan_in) truncated at 2 sigma (std
+    0.88 sqrt(1.3) sigma: He's variance); U(+-sqrt(3 / fan_in)); or torch's default as it is."""
     torch.manual_seed(0)
     probe = torch.nn.Sequential(torch.nn.Conv2d(4, 64, 8), torch.nn.Linear(512, 64))
     default = [(layer.weight.clone(), layer.bias.clone()) for layer in probe]
@@ -77,8 +79,8 @@ def test_every_scripts_init_gives_each_layer_its_schemes_weights(name, scheme, b
     for layer, (default_weight, default_bias) in zip(probe, default, strict=True):
         fan_in = layer.weight[0].numel()
         w = layer.weight.detach()
-        if scheme == "he":
-            sigma = math.sqrt(2 / fan_in)
+        if scheme in ("he", "variance-scaling"):
+            sigma = math.sqrt((2.6 if scheme == "variance-scaling" else 2) / fan_in)
             assert w.abs().max() <= 2 * sigma + 1e-6
             assert w.std().item() == pytest.approx(0.88 * sigma, rel=0.05)
         elif scheme == "uniform-sqrt3":

@@ -315,6 +315,19 @@ def check_adam_beta2() -> None:
         assert make_optimizer(params, args).beta2 == beta2
 
 
+def check_weight_init() -> None:
+    """--weight-init he: a normal of std sqrt(2 / fan_in) truncated at 2 std (6.3.3's);
+    variance-scaling, TensorFlow's as run: std sqrt(2.6 / fan_in) truncated, He's variance."""
+    for argv, variance in ((["--weight-init", "he"], 0.774 * 2), (["--weight-init",
+                           "variance-scaling"], 0.774 * 2.6)):  # fmt: skip
+        torch.manual_seed(0)
+        model = network("a3c_ff", *argv)
+        for layer in (model.torso[2], model.torso[5]):  # conv 4x4 and the FC layer
+            fan_in = layer.weight[0].numel()
+            assert layer.weight.var().item() == pytest.approx(variance / fan_in, rel=0.05)
+            assert torch.all(layer.bias == 0)
+
+
 def check_adam_epsilon() -> None:
     """Eq. A.5's eps by default; --adam-epsilon-form code, the thesis code's update
     lr sqrt(1 - beta2^t) / (1 - beta1^t) m / sqrt(v + eps), over two steps."""
@@ -362,6 +375,7 @@ THE_TEXT = {
     "SS and WW temperatures": check_ss_temperature,
     "LWS layers": check_lws,
     "global-norm clipping bound": check_global_norm,
+    "He initialisation": check_weight_init,
     "Adam's beta2": check_adam_beta2,
     "Adam's epsilon": check_adam_epsilon,
     "value loss factor": check_vf_coef,

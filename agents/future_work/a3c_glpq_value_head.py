@@ -101,9 +101,10 @@ class Args:
     # Network (thesis 5.2.1 and chapter 6)
     activation: Literal["relu", "elu"] = "relu"
     """the hidden-layer activation (thesis 6.3.2)"""
-    weight_init: Literal["torch", "he", "uniform-sqrt3"] = "torch"
-    """weights: torch U(+-1/sqrt(fan_in)); he: truncated normal std sqrt(2/fan_in);
-    uniform-sqrt3: U(+-sqrt(3)/sqrt(fan_in)) (thesis 6.3.3)"""
+    weight_init: Literal["torch", "he", "variance-scaling", "uniform-sqrt3"] = "torch"
+    """weights: torch U(+-1/sqrt(fan_in)); he: truncated normal std sqrt(2/fan_in) (6.3.3);
+    variance-scaling: TensorFlow's variance_scaling_initializer, the thesis runs' He init, std
+    sqrt(2.6/fan_in) before its 2-std truncation; uniform-sqrt3: U(+-sqrt(3)/sqrt(fan_in))"""
     bias_init: Annotated[float | None, default_text("torch init's, else 0")] = None
     """a constant for every bias (thesis A.1.3 uses 0.01); by default U(+-1/sqrt(fan_in)) with
     torch init, 0 with the other weight inits"""
@@ -474,8 +475,9 @@ def init_parameters(model: nn.Module, weight_init: str, bias_init: float | None)
         if not isinstance(layer, (nn.Conv2d, nn.Linear)):
             continue
         fan_in = layer.weight[0].numel()
-        if weight_init == "he":
-            std = math.sqrt(2.0 / fan_in)
+        if weight_init in ("he", "variance-scaling"):
+            # TensorFlow's scales by 1.3 so that, truncated at 2 std, the variance is 2 / fan_in
+            std = math.sqrt((2.6 if weight_init == "variance-scaling" else 2.0) / fan_in)
             nn.init.trunc_normal_(layer.weight, std=std, a=-2 * std, b=2 * std)
         elif weight_init == "uniform-sqrt3":
             bound = math.sqrt(3.0 / fan_in)
