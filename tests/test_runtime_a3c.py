@@ -133,7 +133,7 @@ def test_resume_continues_global_step(short_run, tmp_path):
     assert after["wall_time"] > old["wall_time"]
     assert after["wall_time"] <= float(rows[-1]["wall_time_s"])  # saved before the final eval
     # the closing line gives the run's whole wall time, and this part's beside it
-    total, part = re.search(r"wall time (\S+) \(evaluations \S+, this part (\S+)\)",
+    total, part = re.search(r"wall time (\S+) \(this part (\S+), its evaluations \S+\)",
                             lines[-1]).groups()  # fmt: skip
     seconds = lambda text: 60 * int(text.split("m")[0]) + int(text.split("m")[1][:-1])  # noqa: E731
     assert seconds(total) >= int(old["wall_time"]) + seconds(part) - 1, lines[-1]

@@ -269,10 +269,13 @@ def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Pa
         if last
         else "no evaluation"
     )
-    part_text = f", this part {format_seconds(summary['part_time_s'])}" if log.wall_offset else ""
+    # a resumed run's evaluation time is this part's only, so it is named as such
+    evals = f"evaluations {format_seconds(log.eval_seconds)}"
+    if log.wall_offset:
+        evals = f"this part {format_seconds(summary['part_time_s'])}, its {evals}"
     print(
         f"{outcome}: {eval_text} | wall time {format_seconds(summary['wall_time_s'])} "
-        f"(evaluations {format_seconds(log.eval_seconds)}{part_text}) | SPS {sps:,.0f} | "
+        f"({evals}) | SPS {sps:,.0f} | "
         f"{global_step:,} steps | {run_dir}",
         flush=True,
     )
