@@ -217,9 +217,10 @@ class Paired:
         top = max(self.base.max(), self.other.max())
         if top > score + slack:
             return None
+        f = ".3f" if self.env_id == CATCH else ".1f"  # as shown() gives the game's scores
         return (
             f"both lines at random play ({self.env_id}: about {score:g}; every run at most "
-            f"{top:.3f}, within {slack:g} of it), so this says nothing about learning"
+            f"{top:{f}}, within {slack:{f}} of it), so this says nothing about learning"
         )
 
     def verdict(self, expect: str, margin: float = MARGIN) -> str:
