@@ -74,9 +74,10 @@ class Args:
     """the workers' network passes: fp32; bf16: acting and learning under bfloat16 CPU autocast;
     bf16-learn: acting in fp32, the learning pass (its forward computed again, and its
     gradients) in bf16. Weights, optimizer statistics, returns and the loss stay float32; the
-    evaluator and --evaluate play in fp32. auto, on a CPU with native bf16: bf16 with K > 1 envs
-    per worker, bf16-learn with K = 1 (a forward over one state is faster in fp32); fp32
-    elsewhere (results/precision_catch, results/throughput_batched). The thesis ran fp32"""
+    evaluator and --evaluate play in fp32. auto: fp32 with K = 1 (the thesis's algorithm and
+    precision) on every CPU; with K > 1 envs per worker, bf16 on a CPU with native bf16, fp32
+    elsewhere (results/throughput_batched). bf16-learn, faster at K = 1 where bf16 is native
+    (results/precision_catch), is another computation: one flag away"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"

@@ -397,7 +397,8 @@ def main() -> None:
             )
             result = run_script(scripts[name], opts.env, num_workers, opts.seconds, k, precision,
                                 opts.eval_episodes, replay, backend, threads)  # fmt: skip
-            print(f"{name}: {result[0]:,.0f} steps/s, {result[2]:.1f} page faults per step")
+            print(f"{name}: {result[0]:,.0f} steps/s ({result[1]:,.0f} per {num_workers} "
+                  f"CPU-seconds), {result[2]:.1f} page faults per step")  # fmt: skip
             measured[name, k, precision, replay, backend, threads].append(result)
 
     if any(run[0] == 0 for runs in measured.values() for run in runs):

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 import torch
 import tyro
-from a3c_runtime import flags as runtime_flags
 from conftest import ALL_SCRIPTS, ROOT, SCRIPT_PATHS, SCRIPTS, load_script
 
 PAGE = ROOT / "docs" / "as-written-and-as-run.md"
@@ -159,18 +158,6 @@ def check_learning_rate() -> None:
     assert runtime.annealed_lr(constant, half) == 7e-4
 
 
-def check_precision(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The default (auto) learns in bf16 on a CPU with native bf16; --precision fp32 is float32."""
-    monkeypatch.setattr(runtime_flags, "native_bf16", lambda: True)
-    default = runtime.resolve_defaults(load_script("a3c_ff").Args(num_workers=1))
-    assert default.precision == "bf16-learn"
-    act, learn = runtime.autocast_contexts(default.precision)
-    assert learn.fast_dtype == torch.bfloat16 and learn._enabled and not act._enabled
-    fp32 = runtime.resolve_defaults(parse(["--precision", "fp32", "--num-workers", "1"])[1])
-    assert fp32.precision == "fp32"
-    assert not any(context._enabled for context in runtime.autocast_contexts(fp32.precision))
-
-
 def check_workers() -> None:
     """The default is a worker per core; --num-workers 12 gives the thesis's 12."""
     assert load_script("a3c_ff").Args().num_workers == len(os.sched_getaffinity(0))
@@ -181,7 +168,6 @@ NOT_THE_TEXT = {
     "A3C's value loss": check_value_loss,
     "gradient clipping": check_clipping,
     "learning-rate schedule": check_learning_rate,
-    "precision": check_precision,
     "actor-learners": check_workers,
 }
 
@@ -191,9 +177,8 @@ def test_each_row_whose_default_is_not_the_text_has_its_check():
 
 
 @pytest.mark.parametrize("what", NOT_THE_TEXT)
-def test_the_default_computes_the_runs_form_and_the_flag_the_texts(what, monkeypatch):
-    check = NOT_THE_TEXT[what]
-    check(monkeypatch) if what == "precision" else check()
+def test_the_default_computes_the_runs_form_and_the_flag_the_texts(what):
+    NOT_THE_TEXT[what]()
 
 
 # ---- the rows whose default is the text: the flag computes the runs' form ----------------------

@@ -93,11 +93,18 @@ def test_autocast_contexts_need_a_resolved_precision():
 
 
 @pytest.mark.parametrize("k", [1, 4])
-def test_auto_precision_is_bf16_for_batches_where_the_cpu_has_it(k, monkeypatch, capsys):
+def test_auto_precision_is_fp32_at_k1_on_every_cpu_and_bf16_for_batches_where_native(
+    k, monkeypatch, capsys
+):
+    """The default run (K = 1, the thesis's algorithm) is the same float32 computation on every
+    CPU; only the fast setting's batches (K > 1) compute in bf16, and only where it is native."""
     a3c = load_script("a3c_ff")
     monkeypatch.setattr(runtime.flags, "native_bf16", lambda: True)
     resolved = runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision
-    assert resolved == ("bf16-learn" if k == 1 else "bf16")  # one state acts faster in fp32
+    assert resolved == ("fp32" if k == 1 else "bf16")
+    assert runtime.resolve_defaults(a3c.Args()).precision == "fp32"  # the default command
+    act, learn = runtime.autocast_contexts(runtime.resolve_defaults(a3c.Args()).precision)
+    assert not act._enabled and not learn._enabled
     monkeypatch.setattr(runtime.flags, "native_bf16", lambda: False)
     assert runtime.resolve_defaults(a3c.Args(envs_per_worker=k)).precision == "fp32"
     for explicit in ("fp32", "bf16", "bf16-learn"):

@@ -213,8 +213,9 @@ def test_the_workers_learning_pass_computes_no_recorded_layer_again(name, one_th
     ],
 )
 def test_the_replay_runs_only_where_it_measured_faster(flags, replays):
-    """Catch with K > 1 in bf16 or fp32 (1.22-1.25x); K = 1, bf16-learn and Atari gained under
-    5% (results/replay_measurement), so there the model stays plain."""
+    """Catch with K > 1 in bf16 or fp32 (the gains in replay_activations' docstring); K = 1,
+    bf16-learn and Atari gained under 5% (results/replay_measurement): there the model stays
+    plain."""
     module = load_script("a3c_ff")
     args = tiny_args(module, **flags)
     model = module.ActorCritic(4 if "env" in flags else 3, args)

@@ -142,7 +142,7 @@ def test_a_sweep_resumes_only_its_runs_own_checkpoint(good, tmp_path):
 
 
 def test_a_sweep_resumes_its_runs_checkpoint_made_on_a_host_of_other_precision(good, tmp_path):
-    """--precision auto resolves by the CPU (bf16-learn with native bf16, fp32 without): the
+    """--precision auto resolves by the CPU at K > 1 (bf16 with native bf16, fp32 without): the
     run's checkpoint from a host that resolved it otherwise is still the run's own."""
     out = tmp_path / "sweep"
     (out / "runs" / "run-0000").mkdir(parents=True)

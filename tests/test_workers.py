@@ -54,8 +54,8 @@ def no_gradient(name: str, model: torch.nn.Module, k: int) -> dict[str, torch.Te
 # that is not 0: a catch); K = 4 with t_max 20, so the 4 episodes end together after 15 steps
 # and each update holds 4 x 15 states
 SETTINGS = {1: (5, 150), 4: (20, 120)}
-# each thesis script in fp32 and in what --precision auto picks on a CPU with native bf16
-# (bf16-learn at K = 1, bf16 at K > 1); chapter 8's scripts in fp32
+# each thesis script in fp32 (--precision auto at K = 1, and without native bf16) and in bf16:
+# bf16-learn at K = 1 (one flag away), bf16 at K > 1 (auto with native bf16); chapter 8's in fp32
 PRECISIONS = {1: ("fp32", "bf16-learn"), 4: ("fp32", "bf16")}
 CASES = [
     (name, k, precision)

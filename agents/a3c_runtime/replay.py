@@ -24,8 +24,8 @@ backward runs in bf16. Anything it cannot replay exactly (a layer called twice i
 Conv2d or Linear subclass, non-zero or string padding, a learning forward over other rows than
 acting's, in another order, or after the weights changed, or a layer fed other inputs than
 acting fed it: each recorded row keeps its input's sum as a fingerprint) raises a RuntimeError
-naming it, at the latest at the first update. It runs only where it measured faster
-(replay_activations).
+naming it, at the latest at the first update. It runs only where it passes the project's rule
+for speed tricks (docs/speed.md, "Speed tricks: the 5% rule"): replay_activations decides.
 """
 
 from __future__ import annotations
@@ -41,11 +41,14 @@ def replay_activations(
     model: nn.Module, rollout_frames: torch.Tensor, args: Any
 ) -> ActivationReplay | None:
     """Attach an ActivationReplay to model for forwards on rows of rollout_frames (t_max + 1, K,
-    ...), where it pays: with K > 1 envs per worker on Catch, in bf16 or fp32. Measured on and
-    off in one run, 3 alternating rounds of 15 s each (results/replay_measurement, AMD EPYC):
-    K = 16 bf16 1.25x, K = 16 fp32 1.22x; under 5% elsewhere, so the model is left as it is
-    there: K = 16 bf16-learn 1.04x, K = 1 0.94-1.04x (acting's copies cost about what the
-    update's forward saves), Breakout K = 16 1.04x (the emulator's share of a step is large)."""
+    ...), where it passes the 5% rule (docs/speed.md): with K > 1 envs per worker on Catch, in
+    bf16 or fp32. Measured on and off in one run, alternating rounds of 15 s, A3C FF
+    (results/replay_measurement): with its input fingerprint, on the 2-core Zen 4 EPYC with
+    native bf16, K = 16 bf16 1.08x and fp32 1.17x; on a 2-core AVX2 EPYC without bf16, shared,
+    K = 16 fp32 1.05x, 1.12x and 1.27x per CPU-second in three runs (its wall clock too noisy to
+    tell). Under 5% elsewhere, so the model is left as it is there: K = 16 bf16-learn 1.04x,
+    K = 1 0.94-1.04x (acting's copies cost about what the update's forward saves), Breakout
+    K = 16 1.04x (the emulator's share of a step is large)."""
     from catch_env.wrappers import is_atari
 
     if args.envs_per_worker == 1 or args.precision == "bf16-learn" or is_atari(args.env):

@@ -43,6 +43,9 @@ from typing import NoReturn
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository: the tools work on a clone
 AGENTS = ROOT / "agents"
+# the Atari games' random and human scores and atari_report's lines (read by atari_report and
+# paired: here, so that neither imports the other)
+ATARI_REPORT_CONFIG = Path(__file__).with_name("atari_report.toml")
 
 
 def load_script(path: Path | str) -> ModuleType:

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ROOT, run_main
+from a3c_tools import ATARI_REPORT_CONFIG, ROOT, run_main
 from a3c_tools.paired import MIN_PAIRS
 
 try:
@@ -48,7 +48,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-CONFIG = Path(__file__).with_name("atari_report.toml")
+CONFIG = ATARI_REPORT_CONFIG
 MARK_SLACK = 1_000  # an evaluation this many steps past a mark or fewer is the mark's
 CONFIDENCE = 0.95
 MIN_SEEDS = MIN_PAIRS  # fewer seeds: no interval

@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from a3c_tools import ATARI_REPORT_CONFIG
+
 EXPECTS = ("better", "worse", "comparable")
 MARGIN = 0.05  # a Catch score difference (success rate) below which two lines are "comparable"
 MAX_RUNS = 400  # beyond this many runs per line, more runs at the budget would not decide it
@@ -165,13 +167,11 @@ def random_play(env_id: str) -> tuple[float, float] | None:
     or an Atari game's from atari_report.toml; None for a game the project has no score for."""
     if env_id in RANDOM_SCORES:
         return RANDOM_SCORES[env_id], RANDOM_SLACK[env_id]
-    from a3c_tools.atari_report import CONFIG
-
     try:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10
         import tomli as tomllib
-    with open(CONFIG, "rb") as f:
+    with open(ATARI_REPORT_CONFIG, "rb") as f:
         games = tomllib.load(f)["games"]
     game = games.get(game_of(env_id))
     if game is None:
