@@ -68,15 +68,17 @@ def test_the_check_fails_on_a_missing_or_changed_figure(tmp_path, monkeypatch):
 
 def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     text = (ROOT / "docs" / "claims.md").read_text()
-    assert f"]({claims.FIGURE.as_posix()})" in text.split("## ")[0]  # it opens the page
+    exploratory = text.split("## Exploratory rows")[1]  # it opens the exploratory rows
+    assert f"]({claims.FIGURE.as_posix()})" in exploratory.split("### ")[0]
     rows, section = [], None  # (section, effect cell, verdict) of each row with an interval
-    for line in text.splitlines():
-        if line.startswith("## "):
-            section = line[3:]
-        cells = line.split(" | ")
-        shown = re.match(r"[+-]\d\.\d{3} \[[^]]*\]", cells[-2]) if len(cells) > 2 else None
+    exploratory = exploratory.split("## Method")[0]
+    for line in exploratory.splitlines():
+        if line.startswith("### "):
+            section = line[4:]
+        cells = line.split(" | ")  # ... | effect | p (Holm) | verdict | history |
+        shown = re.match(r"[+-]\d\.\d{3} \[[^]]*\]", cells[-4]) if len(cells) > 4 else None
         if line.startswith("| ") and shown:  # the decisive look's interval comes first
-            rows.append((section, shown[0], cells[-1].split("**")[1]))
+            rows.append((section, shown[0], cells[-2].split("**")[1]))
     points = claims.plotted(ROOT / "docs" / claims.FIGURE)
     drawn = [(p.section, f"{p.effect:+.3f} [{p.low:+.3f}, {p.high:+.3f}]", p.verdict)
              for p in points]  # fmt: skip
@@ -85,7 +87,7 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     assert set(claims.COLOURS) == {"reproduced", "contradicted", "inconclusive", "no verdict"}
     assert len(set(claims.COLOURS.values())) == 4  # one colour to each verdict
     # the caption counts the table rows left off: every row, less the heads, less those drawn
-    left_off = text.count("\n| ") - text.count("\n|---") - len(rows)
+    left_off = exploratory.count("\n| ") - exploratory.count("\n|---") - len(rows)
     assert f"*The {len(rows)} Catch rows with an interval" in text
     groups = text.split("Left off: ")[1].split("*")[0]  # "3 judged ... (...); 11 with ..."
     assert sum(int(n) for n in re.findall(r"(?:^|; )(\d+) ", groups)) == left_off
@@ -98,6 +100,7 @@ def test_every_claim_names_its_place_form_and_evidence_and_its_lines_exist_or_a_
     assert len(rows) >= 25
     for claim in rows:
         assert claim["claim"] and claim["where"] and claim["form"] and claim["thesis"]
+        assert claim["id"] and claim["history"].strip()
         if "baseline" in claim:
             assert claim["expect"] in ("better", "worse", "comparable")
             assert claim["command"] and len(claim["names"]) == 2
@@ -133,7 +136,8 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
     assert verdict == "not run yet" and ours.startswith("not run yet") and effect == "-"
     data = {"intro": "# Claims", "outro": "## Missing", "section": [
         {"title": "S", "claim": [{**claim, "line": "missing", "claim": "c", "where": "Fig 1",
-                                  "form": "as run", "thesis": "t"}]}]}  # fmt: skip
+                                  "form": "as run", "thesis": "t", "id": "r1",
+                                  "history": "h"}]}]}  # fmt: skip
     page = claims.render({**data, "missing": "Not run yet:"})
     assert page.endswith("## Missing\n\nNot run yet:\n\n- Fig 1: `make b`\n")  # the command
     # every line run: no sentence announcing a list of what is missing, no dangling colon
@@ -142,22 +146,33 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
     assert page.endswith("## Missing\n") and "Not run yet:" not in page
 
 
-def test_the_page_opens_with_a_tally_of_its_verdicts():
-    calls = ["inconclusive: about 9 runs", "reproduced", "no claim to test", "reproduced"]
-    assert claims.tally(calls) == (
-        "**At a glance**: 4 rows: 2 reproduced, 1 inconclusive, 1 no claim to test."
+def judged_row(verdict: str, **claim) -> claims.Judged:
+    return claims.Judged({"id": "x", **claim}, "S", "", "-", None, None, verdict, "")
+
+
+def test_the_tally_counts_experiments_not_rows_that_reuse_anothers_runs():
+    rows = [judged_row("inconclusive: about 9 runs"), judged_row("reproduced"),
+            judged_row("no claim to test"), judged_row("reproduced", id="again",
+                                                      same_runs_as="x")]  # fmt: skip
+    assert claims.tally(rows) == (
+        "**At a glance**: 3 experiments: 1 reproduced, 1 inconclusive, 1 no claim to test, in 4 "
+        "rows (1 re-use another row's runs and are not counted again: again)."
     )
     page = (ROOT / "docs" / "claims.md").read_text()
-    cells = [row.split(" | ")[-1] for row in page.splitlines() if row.startswith("| ")]
-    heads = [cell.strip("| ").split("**")[1] for cell in cells if cell.startswith("**")]
-    assert f"**At a glance**: {len(heads)} rows: " in page
-    for head in set(heads):
-        assert f"{heads.count(head)} {head}" in page.split("**At a glance**")[1].split("\n")[0]
+    exploratory = page.split("## Exploratory rows")[1].split("## Method")[0]
+    rows = [row.split(" | ") for row in exploratory.splitlines() if row.startswith("| ")]
+    heads = [(cells[0][2:], cells[-2].split("**")[1]) for cells in rows if "**" in cells[-2]]
+    counted = [head for row_id, head in heads if "re-uses the runs of" not in
+               next(cells[-1] for cells in rows if cells[0][2:] == row_id)]  # fmt: skip
+    line = page.split("**At a glance**: ")[1].split("\n")[0]
+    assert line.startswith(f"{len(counted)} experiments: ") and f"in {len(heads)} rows" in line
+    for head in set(counted):
+        assert f"{counted.count(head)} {head}" in line.split(", in ")[0]
 
 
 def test_the_readme_quotes_the_claims_pages_tally():
     page = (ROOT / "docs" / "claims.md").read_text()
-    counts = page.split("**At a glance**: ")[1].split("\n")[0].rstrip(".")
+    counts = page.split("**At a glance**: ")[1].split(", in ")[0]
     readme = " ".join((ROOT / "README.md").read_text().split())
     assert f"({counts})" in readme, f"README.md: quote the claims page's tally, ({counts})"
 
@@ -211,8 +226,10 @@ def test_a_row_rests_on_its_first_look_and_an_extended_row_on_its_second(tmp_pat
     assert effect.endswith(f"first look (n = 8, 95% t): {first_effect}")
     # the page: the verdict's head in bold, the rest after it
     data = {"intro": "# Claims", "outro": "## End", "section": [{"title": "S", "claim": [
-        {**extended, "claim": "c", "where": "Fig 1", "form": "as run", "thesis": "t"},
-        {**anew, "claim": "c", "where": "Fig 2", "form": "as run", "thesis": "t"}]}]}  # fmt: skip
+        {**extended, "claim": "c", "where": "Fig 1", "form": "as run", "thesis": "t", "id": "a",
+         "history": "h"},
+        {**anew, "claim": "c", "where": "Fig 2", "form": "as run", "thesis": "t", "id": "b",
+         "history": "h"}]}]}  # fmt: skip
     write_line(tmp_path / "line", (base + gain)[:11])
     page = claims.render(data)
     assert f"**{claims.head_of(first_verdict)}**" in page and "; extension to 15 runs" in page
@@ -297,7 +314,15 @@ def test_an_atari_row_pairs_its_lines_by_seed_at_the_full_steps(tmp_path, monkey
     five = {**claim, "atari": {**atari, "seeds": 5}}
     assert claims.evidence(five)[1] == "-" and "5 seeds x 2M steps" in claims.evidence(five)[2]
     # the forest plot, in Catch score, leaves it off; its caption says why
-    row = {**claim, "claim": "c", "where": "Fig 7.8", "form": "as run", "thesis": "t"}
+    row = {
+        **claim,
+        "claim": "c",
+        "where": "Fig 7.8",
+        "form": "as run",
+        "thesis": "t",
+        "id": "r",
+        "history": "h",
+    }
     data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}
     assert claims.forest_points(data) == []
     page = claims.render(data)
@@ -341,7 +366,15 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
     with pytest.raises(ValueError, match="expects random play"):
         claims.evidence({**claim, "expect": "worse"})
     # the forest plot leaves it off; the caption counts it, by why, once judged
-    row = {**claim, "claim": "c", "where": "Fig 6.10", "form": "as run", "thesis": "t"}
+    row = {
+        **claim,
+        "claim": "c",
+        "where": "Fig 6.10",
+        "form": "as run",
+        "thesis": "t",
+        "id": "r",
+        "history": "h",
+    }
     data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}
     assert "Left off: 1 not run yet (1 in A)." in claims.caption(data, [claims.evidence(row)])
     judged([-13.1, -2.3, -8.5])
