@@ -386,3 +386,198 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
                                     for seed in (1, 1001, 2001)])  # fmt: skip
     with pytest.raises(ValueError, match="no random and human scores for Tennis"):
         claims.evidence({**claim, "atari": {**atari, "game": "Tennis"}})
+
+
+# --- multiplicity, power, history, defects (issue 70) -------------------------------------------
+
+
+def test_p_values_are_the_paired_t_tests_the_intervals_invert():
+    from scipy import stats
+
+    rng = np.random.default_rng(70)
+    for n in (3, 5, 8, 18):
+        d = rng.normal(0.03, 0.1, n)
+        assert paired.p_value(d) == pytest.approx(stats.ttest_1samp(d, 0.0).pvalue, rel=1e-9)
+        # the 1 - p interval just touches 0; a 95% interval excludes 0 exactly when p < 0.05
+        low, high = paired.interval(d, 1 - paired.p_value(d))
+        assert min(abs(low), abs(high)) == pytest.approx(0.0, abs=1e-9)
+        low, high = paired.interval(d)
+        assert (low > 0 or high < 0) == (paired.p_value(d) < 0.05)
+        # a comparable claim: the interval at 1 - p touches the band's nearest edge
+        p = paired.margin_p_value(d)
+        low, high = paired.interval(d, 1 - p)
+        edge = paired.MARGIN if d.mean() >= 0 else -paired.MARGIN
+        assert min(abs(low - edge), abs(high - edge)) == pytest.approx(0.0, abs=1e-9)
+    assert paired.p_value(np.array([0.25, 0.25, 0.25])) == 0.0  # no spread, an effect
+
+
+def test_holm_adjusts_as_by_hand_and_keeps_the_family_wise_error():
+    # sorted 0.005, 0.01, 0.03, 0.04 of 4: x4, x3, x2, x1, made monotone
+    assert paired.holm([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert paired.holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])
+    # 45 tests with no effect, 2,000 pages: some test decided on 5% of pages at most after Holm,
+    # where each at its own 95% gives about 45 x 5% = 2.25 directional verdicts per page
+    rng = np.random.default_rng(45)
+    d = rng.normal(0.0, 0.1, (2_000, 45, 8))
+    _, low, high = paired.t_intervals(d)
+    alone = ((low > 0) | (high < 0)).sum(axis=1)
+    assert 2.0 < alone.mean() < 2.5
+    from scipy import stats
+
+    p = 2 * stats.t.sf(np.abs(d.mean(-1) / (d.std(-1, ddof=1) / np.sqrt(8))), 7)
+    any_false = [min(paired.holm(list(page))) < 0.05 for page in p[:500]]
+    assert np.mean(any_false) <= 0.07
+
+
+def test_runs_for_power_matches_the_noncentral_t_known_values():
+    # R: power.t.test(n = 10, delta = 1, sd = 1, type = "paired") gives power 0.8030969;
+    # power.t.test(delta = 0.5, sd = 1, power = 0.8, type = "paired") gives n = 33.37
+    assert paired.power(1.0, 1.0, 10, 0.05) == pytest.approx(0.8030969, abs=1e-6)
+    assert paired.runs_for_power(0.5, 1.0, 0.05) == 34
+    assert paired.runs_for_power(1.0, 1.0, 0.05) == 10
+    assert paired.runs_for_power(-1.0, 1.0, 0.05) == 10  # the sign does not matter
+    n = paired.runs_for_power(0.3, 1.0, 0.001)
+    assert paired.power(0.3, 1.0, n, 0.001) >= 0.8 > paired.power(0.3, 1.0, n - 1, 0.001)
+    assert paired.runs_for_power(0.0, 1.0, 0.05) is None
+    assert paired.runs_for_power(1e-4, 1.0, 0.05) is None  # beyond MAX_POWER_RUNS
+    # about twice the runs the interval needs to just exclude 0 (the old, 50%-power estimate)
+    old = paired.runs_to_decide(0.5, paired.t_quantile(8) / np.sqrt(8), 8)
+    assert 1.7 * old <= paired.runs_for_power(0.5, 1.0, 0.05) <= 2.5 * old
+
+
+def load_claims():
+    with open(claims.CLAIMS, "rb") as f:
+        return claims.tomllib.load(f)
+
+
+def test_every_row_keeps_its_history_and_the_known_cases_say_theirs():
+    data = load_claims()
+    rows = {c["id"]: c for s in data["section"] for c in s["claim"]}
+    assert all(len(c["history"].split()) >= 5 for c in rows.values())
+    # Figure 6.10's rows: the split after the 1.0 line's runs, the rule changed after the data
+    vf1 = rows["fig6.10-vf1"]["history"]
+    assert "split" in vf1 and "after" in vf1 and "when any did" in vf1 and "removed" in vf1
+    assert "split" in rows["fig6.10-vf05"]["history"]
+    # item c3's amendment: after item c's glpq_fig78 result was on the page
+    for row in ("fig7.8-breakout-glpq", "fig7.8-beamrider-glpq-ff", "fig7.8-beamrider-glpq-lpq"):
+        assert "c3" in rows[row]["history"] and "glpq_fig78" in rows[row]["history"], row
+    # the bootstrap -> t change after all first-look data: the 9 rows it turned inconclusive
+    flipped = ["fig6.5-ww-ff-final", "fig6.5-sstt-written", "fig6.5-sstt-run", "fig6.7-elu",
+               "fig7.7-run", "fig7.5-taut-tau1", "fig7.5-taut-corrected",
+               "fig7.5-corrected-tau1", "fw-lpq-data"]  # fmt: skip
+    for row in flipped:
+        text = rows[row]["history"]
+        assert "bootstrap" in text and "7d21ae6" in text and "not extended" in text, row
+    # and every Catch row with an interval says when its t interval came
+    catch = [c for c in rows.values() if "baseline" in c and "atari" not in c]
+    assert all("7d21ae6" in c["history"] for c in catch)
+    # the page shows each row's history in its row
+    page = (ROOT / "docs" / "claims.md").read_text()
+    for row in rows.values():
+        line = next(x for x in page.splitlines() if x.startswith(f"| {row['id']} | "))
+        assert " ".join(row["history"].split()) in line
+
+
+def test_a_row_without_its_history_is_refused():
+    data = load_claims()
+    del data["section"][0]["claim"][0]["history"]
+    with pytest.raises(ValueError, match="fig6.3-written in thesis_claims.toml has no history"):
+        claims.render(data)
+    data = load_claims()
+    data["section"][0]["claim"][1]["id"] = "fig6.3-written"
+    with pytest.raises(ValueError, match="repeats"):
+        claims.judge(data)
+
+
+def test_verdicts_are_at_the_holm_adjusted_level():
+    judged = {j.claim["id"]: j for j in claims.judge(load_claims())}
+    family = [j for j in judged.values() if j.adjusted is not None]
+    ps = {j.claim["id"]: j.p for j in family}
+    # the adjusted p-values are Holm's over the page's tests, a repeated test counted once
+    assert judged["ch8-glpq-best"].adjusted == judged["fig7.6-searing"].adjusted
+    counted = [i for i in ps if i != "ch8-glpq-best"]
+    assert claims.family_size(list(judged.values())) == len(counted) == 45
+    holm = dict(zip(counted, paired.holm([ps[i] for i in counted]), strict=True))
+    assert all(judged[i].adjusted == pytest.approx(holm[i]) for i in counted)
+    for j in family:
+        head = claims.head_of(j.verdict)
+        if "defect" in j.claim:
+            assert j.verdict.startswith("no verdict: runs had a known defect")
+        elif j.alone.startswith("no verdict"):
+            assert head == "no verdict"
+        else:  # decided exactly when its adjusted p is below 0.05
+            assert (head in ("reproduced", "contradicted")) == (j.adjusted < claims.ALPHA)
+    # He's row is decided by its interval alone (p 0.027) but not after Holm
+    assert judged["fig6.8-he"].alone == "reproduced" and judged["fig6.8-he"].p < 0.05
+    assert judged["fig6.8-he"].verdict.startswith("inconclusive: reproduced by its interval alone")
+    assert claims.head_of(judged["fig6.9-breakout-lws"].verdict) == "reproduced"
+    # an inconclusive row's runs: 80% power at Holm's first level
+    level = claims.ALPHA / 45
+    row = judged["fig6.7-elu"]
+    looks = claims.compared(row.claim)
+    d = looks.decisive.other - looks.decisive.base
+    n = paired.runs_for_power(abs(d.mean()), d.std(ddof=1), level)
+    assert f"about {n} runs per line for 80% power at {level:.2g}" in row.verdict
+    page = (ROOT / "docs" / "claims.md").read_text()
+    lead = page.split("**Multiplicity.**")[1].split("\n")[0]
+    assert (
+        "45 tests" in lead and "Holm" in lead and "1 verdict survives: fig6.9-breakout-lws" in lead
+    )
+    assert "about 2.2 directional verdicts" in lead
+    assert "(fw-glpq-value, fw-glpq-data) but are struck for a known defect" in lead
+
+
+def test_an_extended_rows_two_looks_make_one_level_5_percent_test():
+    first = claims.Paired(["a"] * 8, np.zeros(8), np.full(8, 0.1), 0.1, 0, 0)
+    looks = claims.Looks(first, first, 11)
+    p1 = claims.look_p(first, "better")
+    assert claims.row_p(looks, "better") == pytest.approx(min(1, 1.5 * min(p1, 2 * p1)))
+    assert claims.row_p(claims.Looks(first, None, None), "better") == p1
+
+
+def test_rows_with_bf16_distances_are_struck_and_mixed_precision_rows_marked():
+    judged = {j.claim["id"]: j for j in claims.judge(load_claims())}
+    struck = {i for i, j in judged.items() if j.verdict.startswith("no verdict: runs had")}
+    assert struck == {"fw-lpq-value", "fw-glpq-value", "fw-lpq-data", "fw-glpq-data",
+                      "fw-lpq-growth"}  # fmt: skip
+    for i in struck:  # each names the campaign items that run it again
+        assert "f1" in judged[i].claim["defect"] and "bf16" in judged[i].claim["defect"]
+    mixed = {i for i, j in judged.items() if "mixed_precision" in j.claim}
+    assert mixed == {"fig7.6-hot", "fig7.6-cold", "fig7.6-searing", "ch8-glpq-best",
+                     "fig6.5-ww-ff-default"}  # fmt: skip
+    page = (ROOT / "docs" / "claims.md").read_text()
+    assert page.count("*precision mixed*:") == len(mixed)
+    plan = claims.tomllib.loads((ROOT / "results" / "campaign" / "plan.toml").read_text())
+    reruns = [line["config_from"] for item in plan["item"] if item["id"].startswith("f1")
+              for line in item["lines"]]  # fmt: skip
+    for i in struck:
+        assert judged[i].claim["line"] in reruns
+
+
+def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_rows():
+    page = (ROOT / "docs" / "claims.md").read_text()
+    heads = [line for line in page.splitlines() if line.startswith("## ")]
+    assert heads[:4] == ["## The answer: the thesis's conclusions",
+                         "## The confirmatory study: planned, not yet run",
+                         "## Exploratory rows", "## Method"]  # fmt: skip
+    answer = page.split("## The answer")[1].split("## ")[0]
+    table = [line for line in answer.splitlines() if line.startswith("| ")][1:]
+    data = load_claims()
+    assert len(table) == len(data["conclusion"]) >= 7
+    assert all(re.search(r"\| \*\*[a-z ]+\*\* \|", line) for line in table)  # a word or two
+    plan = claims.tomllib.loads(claims.CONFIRMATORY.read_text())
+    confirm = page.split("## The confirmatory study")[1].split("## ")[0]
+    for claim in plan["claim"]:
+        assert (
+            f"| {claim['id']} | " in confirm and f"{claim['runs']} ({claim['power']:.0%}" in confirm
+        )
+    assert confirm.count("**planned, not yet run**") == len(plan["claim"])
+
+
+def test_a_conclusions_verdict_combines_its_rows():
+    assert claims.combine(["reproduced", "reproduced"]) == "reproduced"
+    assert claims.combine(["reproduced", "no verdict"]) == "partly reproduced"
+    assert claims.combine(["contradicted", "inconclusive"]) == "partly contradicted"
+    assert claims.combine(["reproduced", "contradicted"]) == "mixed"
+    assert claims.combine(["inconclusive", "no verdict"]) == "inconclusive"
+    assert claims.combine(["no verdict"]) == "no verdict" and claims.combine([]) == "untested"

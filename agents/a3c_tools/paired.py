@@ -28,7 +28,9 @@ Verdicts, from the interval and the expected direction:
 
 An inconclusive verdict states the runs per line that would decide it if the effect and the
 spread stayed as measured: the smallest n whose t(n - 1) sd / sqrt(n) puts the interval off 0
-(or the margin).
+(or the margin), about 50% power. `runs_for_power` gives the runs for a stated power instead
+(the noncentral t), `p_value` / `margin_p_value` the p-value of the test an interval inverts,
+and `holm` the adjustment of a family of them (the claims page uses these three).
 """
 
 from __future__ import annotations

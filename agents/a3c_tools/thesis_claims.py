@@ -34,6 +34,18 @@ progress. Two looks at 95% each would give a row with no effect a directional ve
 often than 5%; at 95% then 97.5% the chance is at most 5% + 2.5% (the page states the rule, and
 tests/test_thesis_claims.py simulates it).
 
+Across the page (`judge`). Every row with an interval has a p-value, that of the two-sided
+paired t test its interval inverts (`look_p`; an extended row's two looks made one level-5% test,
+`row_p`), and Holm's adjusted p-value over the page's family of tests (`a3c_tools.paired.holm`);
+its verdict is taken at the adjusted level (ALPHA), and an inconclusive row gives the runs per
+line for 80% power at Holm's first level (`a3c_tools.paired.runs_for_power`). A row keeps its
+`history` (required: `check_rows` refuses a row without it), may re-use another row's runs
+(`same_runs_as`: not counted again in the tally, and a repeated test counted once in the
+family), may be struck (`defect`: no verdict until its runs are made again) or marked
+(`mixed_precision`). The page opens with chapter 8's conclusions (`[[conclusion]]`, each
+verdict combined from its rows), then the confirmatory study's primary claims (read from
+results/confirmatory/plan.toml), then every row, exploratory, then the method.
+
 The forest plot has one row per claim with an interval (the paired mean effect as a dot, the
 interval that gives its verdict as a bar, coloured by verdict, grouped by the page's sections);
 the rows without one are left off, and the caption under it counts them. It lives at
@@ -52,7 +64,7 @@ import json
 import re
 import sys
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from a3c_tools import run_main
@@ -427,10 +439,12 @@ def judge(claims: dict) -> list[Judged]:
                 verdict += power_note(paired, expect, level)
             if looks.extension is not None and looks.second is None:
                 verdict += f"; extension to {looks.extension} runs in progress (campaign)"
-        elif "baseline" not in claim and ids_of(claim):  # a judgement over other rows
-            heads = [head_of(judged[index[o]].verdict) for o in ids_of(claim)]
-            verdict = f"{combine(heads)}: from rows {', '.join(ids_of(claim))}"
         judged.append(Judged(claim, title, ours, effect, p, adj, verdict, alone))
+    for i, row in enumerate(judged):  # a judgement over other rows, once they are judged
+        if "baseline" not in row.claim and ids_of(row.claim):
+            heads = [head_of(judged[index[o]].verdict) for o in ids_of(row.claim)]
+            verdict = f"{combine(heads)}: from rows {', '.join(ids_of(row.claim))}"
+            judged[i] = replace(row, verdict=verdict)
     return judged
 
 
