@@ -58,6 +58,11 @@ def test_the_check_fails_on_a_changed_number_or_a_used_seed(tmp_path):
     done = run_main(confirmatory.main, [str(changed), "--check"])
     assert done.returncode == 1 and "run seeds already used by committed runs: [1, " in done.stdout
     assert 1 in confirmatory.committed_seeds() and 7500 not in confirmatory.committed_seeds()
+    old = 'test = { baseline = "results/confirmatory/catch/lpq_low_lr"'
+    changed.write_text(text.replace(old, old.replace("lpq_low_lr", "nowhere")))
+    done = run_main(confirmatory.main, [str(changed), "--check"])
+    assert done.returncode == 1 and "P4: its test reads ['results/confirmatory/catch/nowhere']" \
+        in done.stdout  # fmt: skip
 
 
 def test_the_plans_items_are_the_campaigns_with_new_seeds_and_paired_lines():
@@ -82,3 +87,53 @@ def test_the_compute_table_counts_each_items_runs_at_its_committed_rate():
     assert confirmatory.cpu_hours(item) == pytest.approx(9 * 1_000_000 * per_step / 3600)
     table = confirmatory.compute(data)
     assert "| c3-glpq-searing | 9 x 1 | 1,000,000 |" in table and "| **all** |" in table
+
+
+def write_line(folder, values, statuses=None):
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = ["run_id,status,score"] + [
+        f"run-{i:04d},{(statuses or ['ok'] * len(values))[i]},{v}" for i, v in enumerate(values)
+    ]
+    (folder / "results.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path, monkeypatch):
+    from a3c_tools import thesis_claims
+
+    monkeypatch.setattr(confirmatory, "ROOT", tmp_path)
+    base = np.linspace(0.3, 0.7, 6)
+    write_line(tmp_path / "ff", base)
+    write_line(tmp_path / "up", base + [0.20, 0.22, 0.19, 0.21, 0.20, 0.18])  # clearly better
+    write_line(tmp_path / "same", (base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])[:5])  # 5 of 6
+    plan = {
+        "study": {"alpha": 0.05},
+        "claim": [
+            {"id": "A", "expect": "better", "runs": 6, "test": {"baseline": "ff", "line": "up"}},
+            {"id": "B", "expect": "comparable", "runs": 6,
+             "test": {"baseline": "ff", "line": "same"}},
+        ],
+    }  # fmt: skip
+    assert confirmatory.outcomes(plan) is None  # one look: not before every run is in
+    write_line(tmp_path / "same", base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
+    a, b = confirmatory.outcomes(plan)
+    pa = paired.p_value(np.array([0.20, 0.22, 0.19, 0.21, 0.20, 0.18]))
+    pb = paired.margin_p_value(np.array([0.01, -0.01, 0.0, 0.02, -0.02, 0.0]))
+    assert (a.p, b.p) == pytest.approx((pa, pb))
+    assert [a.adjusted, b.adjusted] == pytest.approx(paired.holm([pa, pb]))
+    assert (a.verdict, b.verdict) == ("reproduced", "reproduced") and a.pairs == 6
+    # the wrong direction is contradicted; a failed run counts as in, its pair left out
+    plan["claim"][0]["expect"] = "worse"
+    write_line(tmp_path / "up", base + 0.2, ["ok"] * 5 + ["failed"])
+    a, _ = confirmatory.outcomes(plan)
+    assert a.verdict == "contradicted" and a.pairs == 5
+    # the claims page shows each claim's result once the look is taken
+    path = tmp_path / "plan.toml"
+    path.write_text(
+        '[study]\nalpha = 0.05\n[[claim]]\nid = "A"\nclaim = "c"\nexperiment = "e"\n'
+        'expect = "better"\neffect = 0.1\neffect_basis = "b"\nruns = 6\npower = 0.9\n'
+        'level = 0.05\ntest = { baseline = "ff", line = "same" }\n'
+    )
+    [_, _, row] = thesis_claims.confirmatory(path)
+    assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
+    write_line(tmp_path / "same", base[:3])
+    assert thesis_claims.confirmatory(path)[2].endswith("| - | **planned, not yet run** |")

@@ -15,6 +15,10 @@ claims), Holm's first and strictest step, has at least the plan's power at the c
 `effect` (a3c_tools.paired.runs_for_power; for "comparable", the distance of `effect` from the
 band's edge), capped at the plan's `max_runs` (the power at the cap is then stated). A run seed
 is new when no committed results.csv under results/ has it in its `seed` column.
+
+The analysis is fixed here too (`outcomes`): one look, once every claim's `test` runs are in,
+the same paired t test as the claims page's, Holm over the family, a verdict where the adjusted
+p is below alpha; the claims page shows it (until then, "planned, not yet run").
 """
 
 from __future__ import annotations
@@ -28,7 +32,16 @@ from pathlib import Path
 import numpy as np
 
 from a3c_tools import ROOT, run_main
-from a3c_tools.paired import MARGIN, power, read_scores, runs_for_power
+from a3c_tools.paired import (
+    MARGIN,
+    holm,
+    interval,
+    margin_p_value,
+    p_value,
+    power,
+    read_scores,
+    runs_for_power,
+)
 
 try:
     import tomllib
@@ -46,17 +59,90 @@ def catch_differences(spec: dict) -> np.ndarray:
     base = read_scores(ROOT / spec["baseline"] / "results.csv")
     lines = [read_scores(ROOT / f / "results.csv") for f in spec.get("lines", [spec.get("line")])]
     ids = [i for i in ids if i in base and all(i in line for line in lines)]
+    if not ids:
+        return np.array([])
     other = np.array([[line[i] for i in ids] for line in lines]).mean(axis=0)
     return other - np.array([base[i] for i in ids])
 
 
+def complete(spec: dict, runs: int) -> bool:
+    """Whether every run a claim's test needs is in (ok or failed): Catch lines hold runs
+    0..runs-1, an Atari figure every seed of both lines at the steps."""
+    if "atari" in spec:
+        return atari_differences({**spec, "runs": runs}).size == runs
+    folders = [spec["baseline"], *spec.get("lines", [spec.get("line")])]
+    for folder in folders:
+        table = ROOT / folder / "results.csv"
+        if not table.is_file():
+            return False
+        with open(table, newline="") as f:
+            done = {row["run_id"] for row in csv.DictReader(f)}
+        if not {f"run-{i:04d}" for i in range(runs)} <= done:
+            return False
+    return True
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """A primary claim's result at the study's one look."""
+
+    id: str
+    pairs: int
+    effect: float
+    low: float
+    high: float
+    p: float
+    adjusted: float
+    verdict: str
+
+
+def outcomes(plan: dict) -> list[Outcome] | None:
+    """The study's one look: None until every claim's runs are all in; then per claim the
+    paired mean difference with its 95% t interval, its two-sided paired t p-value (for
+    "comparable", of |difference| = 0.05), Holm's adjusted p over the family, and the verdict
+    at the family's level (`alpha`)."""
+    claims, alpha = plan["claim"], plan["study"]["alpha"]
+    if not all(complete(c["test"], c["runs"]) for c in claims):
+        return None
+    found = []
+    for claim in claims:
+        d = differences({**claim["test"], "runs": claim["runs"]})
+        test = margin_p_value if claim["expect"] == "comparable" else p_value
+        low, high = interval(d)
+        found.append((claim, d, test(d), low, high))
+    adjusted = holm([p for _, _, p, _, _ in found])
+    result = []
+    for (claim, d, p, low, high), adj in zip(found, adjusted, strict=True):
+        effect = float(d.mean())
+        verdict = "inconclusive"
+        if adj < alpha and claim["expect"] == "comparable":
+            verdict = "reproduced" if abs(effect) < MARGIN else "contradicted"
+        elif adj < alpha:
+            sign = 1 if claim["expect"] == "better" else -1
+            verdict = "reproduced" if sign * effect > 0 else "contradicted"
+        result.append(Outcome(claim["id"], d.size, effect, low, high, p, adj, verdict))
+    return result
+
+
 def atari_differences(spec: dict) -> np.ndarray:
-    """The committed paired differences of two lines of an Atari figure on one game, by seed."""
+    """The paired differences of two lines of an Atari figure on one game, by seed (with `seed`,
+    `runs` and `steps` in the spec: only seeds seed + 1000 i, i < runs, that reached the steps)."""
     finals: dict[str, dict[int, float]] = {}
-    with open(ROOT / spec["atari"] / "results.csv", newline="") as f:
+    table = ROOT / spec["atari"] / "results.csv"
+    if not table.is_file():
+        return np.array([])
+    wanted = None
+    if "seed" in spec:
+        wanted = {int(spec["seed"]) + STRIDE * i for i in range(int(spec["runs"]))}
+    with open(table, newline="") as f:
         for row in csv.DictReader(f):
-            if row["game"] == spec["game"]:
-                finals.setdefault(row["line"], {})[int(row["seed"])] = float(row["final_score"])
+            if row["game"] != spec["game"] or (
+                wanted is not None and int(row["seed"]) not in wanted
+            ):
+                continue
+            if int(row.get("final_step") or 0) < int(spec.get("steps", 0)):
+                continue
+            finals.setdefault(row["line"], {})[int(row["seed"])] = float(row["final_score"])
     base, line = finals.get(spec["baseline"], {}), finals.get(spec["line"], {})
     seeds = sorted(set(base) & set(line))
     return np.array([line[s] - base[s] for s in seeds])
@@ -128,6 +214,20 @@ def problems(plan: dict, plan_path: Path) -> list[str]:
             out.append(f"{claim['id']}: the plan says runs, power, level {stated}, the "
                        f"committed runs give {computed}")  # fmt: skip
         items = {item["id"]: item for item in plan.get("item", [])}
+        made = {line["out"] for i in claim["items"] if i in items
+                for line in items[i].get("lines", []) if isinstance(line, dict)}  # fmt: skip
+        atari = [items[i] for i in claim["items"] if i in items and items[i]["kind"] == "atari"]
+        made |= {f"{a['out']}/{a['figure']}:{line}" for a in atari for line in a["lines"]}
+        test = claim["test"]
+        if "atari" in test:
+            needed = {f"{test['atari']}:{line}" for line in (test["baseline"], test["line"])}
+            needed -= {f"{test['atari']}:ff"} if any(m.endswith(":ff") for m in made) else set()
+        else:
+            needed = {test["baseline"], *test.get("lines", [test.get("line")])}
+        if not needed <= made:
+            out.append(
+                f"{claim['id']}: its test reads {sorted(needed - made)}, which no item makes"
+            )
         for item_id in claim["items"]:
             item = items.get(item_id)
             if item is None:

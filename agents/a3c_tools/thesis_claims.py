@@ -567,14 +567,25 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
     experiment, the effect it must detect, its runs per line and power, and its status."""
     if not plan_path.is_file():
         return []
+    from a3c_tools.confirmatory import outcomes
+
     plan = tomllib.loads(plan_path.read_text())
+    found = outcomes(plan)  # None until every claim's runs are in: one look
     out = ["| id | primary claim | experiment | effect to detect | runs per line (power) | "
-           "verdict |", "|---|---|---|---|---|---|"]  # fmt: skip
-    for claim in plan.get("claim", []):
+           "effect [95% t interval], p (Holm) | verdict |",
+           "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for i, claim in enumerate(plan.get("claim", [])):
+        result, verdict = "-", "**planned, not yet run**"
+        if found is not None:
+            o = found[i]
+            f = ".3f" if "atari" not in claim["test"] else ".1f"
+            result = (f"{o.effect:+{f}} [{o.low:+{f}}, {o.high:+{f}}] (n = {o.pairs}), "
+                      f"{shown_p(o.p)} ({shown_p(o.adjusted)})")  # fmt: skip
+            verdict = f"**{o.verdict}**"
         cells = [claim["id"], claim["claim"], claim["experiment"],
                  f"{claim['effect']:+g} ({claim['effect_basis']})".replace("+0 (", "0 ("),
                  f"{claim['runs']} ({claim['power']:.0%} at {claim['level']:.4f})",
-                 "**planned, not yet run**"]  # fmt: skip
+                 result, verdict]  # fmt: skip
         out.append("| " + " | ".join(" ".join(str(c).split()) for c in cells) + " |")
     return out
 
