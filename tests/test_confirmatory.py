@@ -137,3 +137,13 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
     write_line(tmp_path / "same", base[:3])
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **planned, not yet run** |")
+
+
+def test_a_bad_plan_is_one_line_and_exit_2(tmp_path):
+    missing = run_main(confirmatory.main, [str(tmp_path / "none.toml")])
+    assert missing.returncode == 2 and len(missing.stderr.strip().splitlines()) == 1
+    short = tmp_path / "short.toml"
+    short.write_text('[study]\nalpha = 0.05\n[[claim]]\nid = "A"\n')
+    done = run_main(confirmatory.main, [str(short), "--check"])
+    assert done.returncode == 2 and done.stderr.strip() == f"{short}: no 'spread_from'"
+    assert "Traceback" not in done.stderr

@@ -301,12 +301,22 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, tomllib.TOMLDecodeError) as error:
         print(f"{opts.plan}: {error}", file=sys.stderr)
         return 2
-    if opts.check:
-        found = problems(plan, opts.plan)
+    try:
+        return report(plan, opts.plan, opts.check)
+    except (KeyError, ValueError, OSError) as error:  # a plan short of a field or a folder
+        what = f"no {error}" if isinstance(error, KeyError) else str(error)
+        print(f"{opts.plan}: {what}", file=sys.stderr)
+        return 2
+
+
+def report(plan: dict, path: Path, check: bool) -> int:
+    """Print the plan's numbers, or with `check` what disagrees; the exit code."""
+    if check:
+        found = problems(plan, path)
         for problem in found:
             print(problem)
         if not found:
-            print(f"{opts.plan} holds what the committed runs give, and its seeds are new")
+            print(f"{path} holds what the committed runs give, and its seeds are new")
         return 1 if found else 0
     sys.stdout.write(table(plan) + "\n" + compute(plan))
     return 0
