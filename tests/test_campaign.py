@@ -193,6 +193,81 @@ def test_repeat_runs_run_0_again_and_compares_its_score(line, tmp_path):
     assert ": identical" in (plan.parent / "PROGRESS.md").read_text()
 
 
+def test_repeat_of_a_chosen_run_says_whether_it_agrees_within_the_stated_margin(line, tmp_path):
+    agent = line.parent / "agents" / "a3c_ff.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "a0b"
+        title = "run 1 again"
+        kind = "repeat"
+        script = "{agent}"
+        source = "{line}"
+        out = "{tmp_path / "again"}"
+        run = 1
+        agree_within = 0.05
+        """,
+    )
+    assert run_main(campaign.main, [str(plan)]).returncode == 0
+    assert rows(tmp_path / "again")[1]["score"] == rows(line)[1]["score"]
+    progress = (plan.parent / "PROGRESS.md").read_text()
+    assert f"- a0b: run 1 again {float(rows(line)[1]['score']):.4f}" in progress
+    assert ": identical (agrees: within 0.05)" in progress
+    # a version that scores 0.06 higher does not learn the same by the stated criterion
+    table = tmp_path / "again" / "results.csv"
+    again = rows(tmp_path / "again")
+    again[1]["score"] = str(float(again[1]["score"]) + 0.06)
+    with table.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(again[0]))
+        writer.writeheader()
+        writer.writerows(again)
+    assert "differs by +0.0600 (DISAGREES: within 0.05)" in campaign.repeat_report(
+        campaign.load_plan(plan), plan
+    )
+
+
+def test_a_sweep_item_makes_new_paired_lines_from_the_plans_own_configuration(line, tmp_path):
+    agent = line.parent / "agents" / "a3c_ff.py"
+    new = [tmp_path / "new_a", tmp_path / "new_b"]
+    entries = ", ".join(f'{{ script = "{agent}", out = "{out}" }}' for out in new)
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "c1"
+        title = "two new lines"
+        kind = "sweep"
+        runs = 2
+        seed = 7500
+        total_timesteps = 100
+        samples = ["learning-rate=loguniform:1e-5:1e-2"]
+        flags = ["--eval-interval", "50"]
+        lines = [{entries}]
+        """,
+    )
+    assert run_main(campaign.main, [str(plan)]).returncode == 0
+    a, b = rows(new[0]), rows(new[1])
+    assert [r["seed"] for r in a] == [r["seed"] for r in b] == ["7500", "8500"]  # new seeds
+    assert [r["learning-rate"] for r in a] == [r["learning-rate"] for r in b]  # they pair up
+    assert {r["seed"] for r in rows(line)}.isdisjoint(r["seed"] for r in a)
+    bad = write_plan(
+        tmp_path,
+        """
+        [[item]]
+        id = "c1"
+        title = "t"
+        kind = "sweep"
+        runs = 2
+        seed = 7500
+        total_timesteps = 100
+        lines = [{ script = "agents/no_such_agent.py", out = "x" }]
+        """,
+    )
+    done = run_main(campaign.main, [str(bad)])
+    assert done.returncode == 2 and "no script agents/no_such_agent.py" in done.stderr
+
+
 def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
     """The figure's results.csv, which the claims page's Atari rows read, follows the runs."""
     plan = write_plan(
@@ -254,7 +329,7 @@ def test_a_bad_plan_exits_2_with_one_line_and_runs_nothing(line, tmp_path, body,
 def test_the_committed_plan_extends_each_line_with_its_own_configuration():
     items = campaign.load_plan(PLAN)
     extended = [s for item in items if item.kind == "extend" for s in item.sweeps]
-    assert len(extended) == 14
+    assert len(extended) == 20  # a0-a7's 14, and f1/f1b's float32 reruns of chapter 8's 6
     for planned in extended:
         source = planned.out if planned.first_look else Path(str(planned.out).replace("_f32", ""))
         config = json.loads((ROOT / source / "sweep.json").read_text())

@@ -68,15 +68,17 @@ def test_the_check_fails_on_a_missing_or_changed_figure(tmp_path, monkeypatch):
 
 def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     text = (ROOT / "docs" / "claims.md").read_text()
-    assert f"]({claims.FIGURE.as_posix()})" in text.split("## ")[0]  # it opens the page
+    exploratory = text.split("## Exploratory rows")[1]  # it opens the exploratory rows
+    assert f"]({claims.FIGURE.as_posix()})" in exploratory.split("### ")[0]
     rows, section = [], None  # (section, effect cell, verdict) of each row with an interval
-    for line in text.splitlines():
-        if line.startswith("## "):
-            section = line[3:]
-        cells = line.split(" | ")
-        shown = re.match(r"[+-]\d\.\d{3} \[[^]]*\]", cells[-2]) if len(cells) > 2 else None
+    exploratory = exploratory.split("## Method")[0]
+    for line in exploratory.splitlines():
+        if line.startswith("### "):
+            section = line[4:]
+        cells = line.split(" | ")  # ... | effect | p (Holm) | verdict | history |
+        shown = re.match(r"[+-]\d\.\d{3} \[[^]]*\]", cells[-4]) if len(cells) > 4 else None
         if line.startswith("| ") and shown:  # the decisive look's interval comes first
-            rows.append((section, shown[0], cells[-1].split("**")[1]))
+            rows.append((section, shown[0], cells[-2].split("**")[1]))
     points = claims.plotted(ROOT / "docs" / claims.FIGURE)
     drawn = [(p.section, f"{p.effect:+.3f} [{p.low:+.3f}, {p.high:+.3f}]", p.verdict)
              for p in points]  # fmt: skip
@@ -85,7 +87,7 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     assert set(claims.COLOURS) == {"reproduced", "contradicted", "inconclusive", "no verdict"}
     assert len(set(claims.COLOURS.values())) == 4  # one colour to each verdict
     # the caption counts the table rows left off: every row, less the heads, less those drawn
-    left_off = text.count("\n| ") - text.count("\n|---") - len(rows)
+    left_off = exploratory.count("\n| ") - exploratory.count("\n|---") - len(rows)
     assert f"*The {len(rows)} Catch rows with an interval" in text
     groups = text.split("Left off: ")[1].split("*")[0]  # "3 judged ... (...); 11 with ..."
     assert sum(int(n) for n in re.findall(r"(?:^|; )(\d+) ", groups)) == left_off
@@ -98,6 +100,7 @@ def test_every_claim_names_its_place_form_and_evidence_and_its_lines_exist_or_a_
     assert len(rows) >= 25
     for claim in rows:
         assert claim["claim"] and claim["where"] and claim["form"] and claim["thesis"]
+        assert claim["id"] and claim["history"].strip()
         if "baseline" in claim:
             assert claim["expect"] in ("better", "worse", "comparable")
             assert claim["command"] and len(claim["names"]) == 2
@@ -133,7 +136,8 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
     assert verdict == "not run yet" and ours.startswith("not run yet") and effect == "-"
     data = {"intro": "# Claims", "outro": "## Missing", "section": [
         {"title": "S", "claim": [{**claim, "line": "missing", "claim": "c", "where": "Fig 1",
-                                  "form": "as run", "thesis": "t"}]}]}  # fmt: skip
+                                  "form": "as run", "thesis": "t", "id": "r1",
+                                  "history": "h"}]}]}  # fmt: skip
     page = claims.render({**data, "missing": "Not run yet:"})
     assert page.endswith("## Missing\n\nNot run yet:\n\n- Fig 1: `make b`\n")  # the command
     # every line run: no sentence announcing a list of what is missing, no dangling colon
@@ -142,22 +146,33 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
     assert page.endswith("## Missing\n") and "Not run yet:" not in page
 
 
-def test_the_page_opens_with_a_tally_of_its_verdicts():
-    calls = ["inconclusive: about 9 runs", "reproduced", "no claim to test", "reproduced"]
-    assert claims.tally(calls) == (
-        "**At a glance**: 4 rows: 2 reproduced, 1 inconclusive, 1 no claim to test."
+def judged_row(verdict: str, **claim) -> claims.Judged:
+    return claims.Judged({"id": "x", **claim}, "S", "", "-", None, None, verdict, "")
+
+
+def test_the_tally_counts_experiments_not_rows_that_reuse_anothers_runs():
+    rows = [judged_row("inconclusive: about 9 runs"), judged_row("reproduced"),
+            judged_row("no claim to test"), judged_row("reproduced", id="again",
+                                                      same_runs_as="x")]  # fmt: skip
+    assert claims.tally(rows) == (
+        "**At a glance**: 3 experiments: 1 reproduced, 1 inconclusive, 1 no claim to test, in 4 "
+        "rows (1 re-use another row's runs and are not counted again: again)."
     )
     page = (ROOT / "docs" / "claims.md").read_text()
-    cells = [row.split(" | ")[-1] for row in page.splitlines() if row.startswith("| ")]
-    heads = [cell.strip("| ").split("**")[1] for cell in cells if cell.startswith("**")]
-    assert f"**At a glance**: {len(heads)} rows: " in page
-    for head in set(heads):
-        assert f"{heads.count(head)} {head}" in page.split("**At a glance**")[1].split("\n")[0]
+    exploratory = page.split("## Exploratory rows")[1].split("## Method")[0]
+    rows = [row.split(" | ") for row in exploratory.splitlines() if row.startswith("| ")]
+    heads = [(cells[0][2:], cells[-2].split("**")[1]) for cells in rows if "**" in cells[-2]]
+    counted = [head for row_id, head in heads if "re-uses the runs of" not in
+               next(cells[-1] for cells in rows if cells[0][2:] == row_id)]  # fmt: skip
+    line = page.split("**At a glance**: ")[1].split("\n")[0]
+    assert line.startswith(f"{len(counted)} experiments: ") and f"in {len(heads)} rows" in line
+    for head in set(counted):
+        assert f"{counted.count(head)} {head}" in line.split(", in ")[0]
 
 
 def test_the_readme_quotes_the_claims_pages_tally():
     page = (ROOT / "docs" / "claims.md").read_text()
-    counts = page.split("**At a glance**: ")[1].split("\n")[0].rstrip(".")
+    counts = page.split("**At a glance**: ")[1].split(", in ")[0]
     readme = " ".join((ROOT / "README.md").read_text().split())
     assert f"({counts})" in readme, f"README.md: quote the claims page's tally, ({counts})"
 
@@ -211,8 +226,10 @@ def test_a_row_rests_on_its_first_look_and_an_extended_row_on_its_second(tmp_pat
     assert effect.endswith(f"first look (n = 8, 95% t): {first_effect}")
     # the page: the verdict's head in bold, the rest after it
     data = {"intro": "# Claims", "outro": "## End", "section": [{"title": "S", "claim": [
-        {**extended, "claim": "c", "where": "Fig 1", "form": "as run", "thesis": "t"},
-        {**anew, "claim": "c", "where": "Fig 2", "form": "as run", "thesis": "t"}]}]}  # fmt: skip
+        {**extended, "claim": "c", "where": "Fig 1", "form": "as run", "thesis": "t", "id": "a",
+         "history": "h"},
+        {**anew, "claim": "c", "where": "Fig 2", "form": "as run", "thesis": "t", "id": "b",
+         "history": "h"}]}]}  # fmt: skip
     write_line(tmp_path / "line", (base + gain)[:11])
     page = claims.render(data)
     assert f"**{claims.head_of(first_verdict)}**" in page and "; extension to 15 runs" in page
@@ -297,7 +314,15 @@ def test_an_atari_row_pairs_its_lines_by_seed_at_the_full_steps(tmp_path, monkey
     five = {**claim, "atari": {**atari, "seeds": 5}}
     assert claims.evidence(five)[1] == "-" and "5 seeds x 2M steps" in claims.evidence(five)[2]
     # the forest plot, in Catch score, leaves it off; its caption says why
-    row = {**claim, "claim": "c", "where": "Fig 7.8", "form": "as run", "thesis": "t"}
+    row = {
+        **claim,
+        "claim": "c",
+        "where": "Fig 7.8",
+        "form": "as run",
+        "thesis": "t",
+        "id": "r",
+        "history": "h",
+    }
     data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}
     assert claims.forest_points(data) == []
     page = claims.render(data)
@@ -341,7 +366,15 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
     with pytest.raises(ValueError, match="expects random play"):
         claims.evidence({**claim, "expect": "worse"})
     # the forest plot leaves it off; the caption counts it, by why, once judged
-    row = {**claim, "claim": "c", "where": "Fig 6.10", "form": "as run", "thesis": "t"}
+    row = {
+        **claim,
+        "claim": "c",
+        "where": "Fig 6.10",
+        "form": "as run",
+        "thesis": "t",
+        "id": "r",
+        "history": "h",
+    }
     data = {"intro": "# C", "outro": "## End", "section": [{"title": "A", "claim": [row]}]}
     assert "Left off: 1 not run yet (1 in A)." in claims.caption(data, [claims.evidence(row)])
     judged([-13.1, -2.3, -8.5])
@@ -353,3 +386,200 @@ def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp
                                     for seed in (1, 1001, 2001)])  # fmt: skip
     with pytest.raises(ValueError, match="no random and human scores for Tennis"):
         claims.evidence({**claim, "atari": {**atari, "game": "Tennis"}})
+
+
+# --- multiplicity, power, history, defects (issue 70) -------------------------------------------
+
+
+def test_p_values_are_the_paired_t_tests_the_intervals_invert():
+    from scipy import stats
+
+    rng = np.random.default_rng(70)
+    for n in (3, 5, 8, 18):
+        d = rng.normal(0.03, 0.1, n)
+        assert paired.p_value(d) == pytest.approx(stats.ttest_1samp(d, 0.0).pvalue, rel=1e-9)
+        # the 1 - p interval just touches 0; a 95% interval excludes 0 exactly when p < 0.05
+        low, high = paired.interval(d, 1 - paired.p_value(d))
+        assert min(abs(low), abs(high)) == pytest.approx(0.0, abs=1e-9)
+        low, high = paired.interval(d)
+        assert (low > 0 or high < 0) == (paired.p_value(d) < 0.05)
+        # a comparable claim: the interval at 1 - p touches the band's nearest edge
+        p = paired.margin_p_value(d)
+        low, high = paired.interval(d, 1 - p)
+        edge = paired.MARGIN if d.mean() >= 0 else -paired.MARGIN
+        assert min(abs(low - edge), abs(high - edge)) == pytest.approx(0.0, abs=1e-9)
+    assert paired.p_value(np.array([0.25, 0.25, 0.25])) == 0.0  # no spread, an effect
+
+
+def test_holm_adjusts_as_by_hand_and_keeps_the_family_wise_error():
+    # sorted 0.005, 0.01, 0.03, 0.04 of 4: x4, x3, x2, x1, made monotone
+    assert paired.holm([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert paired.holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])
+    # 45 tests with no effect, 2,000 pages: some test decided on 5% of pages at most after Holm,
+    # where each at its own 95% gives about 45 x 5% = 2.25 directional verdicts per page
+    rng = np.random.default_rng(45)
+    d = rng.normal(0.0, 0.1, (2_000, 45, 8))
+    _, low, high = paired.t_intervals(d)
+    alone = ((low > 0) | (high < 0)).sum(axis=1)
+    assert 2.0 < alone.mean() < 2.5
+    from scipy import stats
+
+    p = 2 * stats.t.sf(np.abs(d.mean(-1) / (d.std(-1, ddof=1) / np.sqrt(8))), 7)
+    any_false = [min(paired.holm(list(page))) < 0.05 for page in p[:500]]
+    assert np.mean(any_false) <= 0.07
+
+
+def test_runs_for_power_matches_the_noncentral_t_known_values():
+    # R: power.t.test(n = 10, delta = 1, sd = 1, type = "paired") gives power 0.8030969;
+    # power.t.test(delta = 0.5, sd = 1, power = 0.8, type = "paired") gives n = 33.37
+    assert paired.power(1.0, 1.0, 10, 0.05) == pytest.approx(0.8030969, abs=1e-6)
+    assert paired.runs_for_power(0.5, 1.0, 0.05) == 34
+    assert paired.runs_for_power(1.0, 1.0, 0.05) == 10
+    assert paired.runs_for_power(-1.0, 1.0, 0.05) == 10  # the sign does not matter
+    n = paired.runs_for_power(0.3, 1.0, 0.001)
+    assert paired.power(0.3, 1.0, n, 0.001) >= 0.8 > paired.power(0.3, 1.0, n - 1, 0.001)
+    assert paired.runs_for_power(0.0, 1.0, 0.05) is None
+    assert paired.runs_for_power(1e-4, 1.0, 0.05) is None  # beyond MAX_POWER_RUNS
+    # about twice the runs the interval needs to just exclude 0 (the old, 50%-power estimate)
+    old = paired.runs_to_decide(0.5, paired.t_quantile(8) / np.sqrt(8), 8)
+    assert 1.7 * old <= paired.runs_for_power(0.5, 1.0, 0.05) <= 2.5 * old
+
+
+def load_claims():
+    with open(claims.CLAIMS, "rb") as f:
+        return claims.tomllib.load(f)
+
+
+def test_every_row_keeps_its_history_and_the_known_cases_say_theirs():
+    data = load_claims()
+    rows = {c["id"]: c for s in data["section"] for c in s["claim"]}
+    assert all(len(c["history"].split()) >= 5 for c in rows.values())
+    # Figure 6.10's rows: the split after the 1.0 line's runs, the rule changed after the data
+    vf1 = rows["fig6.10-vf1"]["history"]
+    assert "split" in vf1 and "after" in vf1 and "when any did" in vf1 and "removed" in vf1
+    assert "split" in rows["fig6.10-vf05"]["history"]
+    # item c3's amendment: after item c's glpq_fig78 result was on the page
+    for row in ("fig7.8-breakout-glpq", "fig7.8-beamrider-glpq-ff", "fig7.8-beamrider-glpq-lpq"):
+        assert "c3" in rows[row]["history"] and "glpq_fig78" in rows[row]["history"], row
+    # the bootstrap -> t change after all first-look data: the 9 rows it turned inconclusive
+    flipped = ["fig6.5-ww-ff-final", "fig6.5-sstt-written", "fig6.5-sstt-run", "fig6.7-elu",
+               "fig7.7-run", "fig7.5-taut-tau1", "fig7.5-taut-corrected",
+               "fig7.5-corrected-tau1", "fw-lpq-data"]  # fmt: skip
+    for row in flipped:
+        text = rows[row]["history"]
+        assert "bootstrap" in text and "7d21ae6" in text and "not extended" in text, row
+    # and every Catch row with an interval says when its t interval came
+    catch = [c for c in rows.values() if "baseline" in c and "atari" not in c]
+    assert all("7d21ae6" in c["history"] for c in catch)
+    # the page shows each row's history in its row
+    page = (ROOT / "docs" / "claims.md").read_text()
+    for row in rows.values():
+        line = next(x for x in page.splitlines() if x.startswith(f"| {row['id']} | "))
+        assert " ".join(row["history"].split()) in line
+
+
+def test_a_row_without_its_history_is_refused():
+    data = load_claims()
+    del data["section"][0]["claim"][0]["history"]
+    with pytest.raises(ValueError, match="fig6.3-written in thesis_claims.toml has no history"):
+        claims.render(data)
+    data = load_claims()
+    data["section"][0]["claim"][1]["id"] = "fig6.3-written"
+    with pytest.raises(ValueError, match="repeats"):
+        claims.judge(data)
+
+
+def test_verdicts_are_at_the_holm_adjusted_level():
+    judged = {j.claim["id"]: j for j in claims.judge(load_claims())}
+    family = [j for j in judged.values() if j.adjusted is not None]
+    ps = {j.claim["id"]: j.p for j in family}
+    # the adjusted p-values are Holm's over the page's tests, a repeated test counted once
+    assert judged["ch8-glpq-best"].adjusted == judged["fig7.6-searing"].adjusted
+    counted = [i for i in ps if i != "ch8-glpq-best"]
+    assert claims.family_size(list(judged.values())) == len(counted) == 45
+    holm = dict(zip(counted, paired.holm([ps[i] for i in counted]), strict=True))
+    assert all(judged[i].adjusted == pytest.approx(holm[i]) for i in counted)
+    for j in family:
+        head = claims.head_of(j.verdict)
+        if "defect" in j.claim:
+            assert j.verdict.startswith("no verdict: runs had a known defect")
+        elif j.alone.startswith("no verdict"):
+            assert head == "no verdict"
+        else:  # decided exactly when its adjusted p is below 0.05
+            assert (head in ("reproduced", "contradicted")) == (j.adjusted < claims.ALPHA)
+    # He's row is decided by its interval alone (p 0.027) but not after Holm
+    assert judged["fig6.8-he"].alone == "reproduced" and judged["fig6.8-he"].p < 0.05
+    assert judged["fig6.8-he"].verdict.startswith("inconclusive: reproduced by its interval alone")
+    assert claims.head_of(judged["fig6.9-breakout-lws"].verdict) == "reproduced"
+    # an inconclusive row's runs: 80% power at Holm's first level
+    level = claims.ALPHA / 45
+    row = judged["fig6.7-elu"]
+    looks = claims.compared(row.claim)
+    d = looks.decisive.other - looks.decisive.base
+    n = paired.runs_for_power(abs(d.mean()), d.std(ddof=1), level)
+    assert f"about {n} runs per line for 80% power at {level:.2g}" in row.verdict
+    page = (ROOT / "docs" / "claims.md").read_text()
+    lead = page.split("**Multiplicity.**")[1].split("\n")[0]
+    assert (
+        "45 tests" in lead and "Holm" in lead and "1 verdict survives: fig6.9-breakout-lws" in lead
+    )
+    assert "about 2.2 directional verdicts" in lead
+    assert "(fw-glpq-value, fw-glpq-data) but are struck for a known defect" in lead
+
+
+def test_an_extended_rows_two_looks_make_one_level_5_percent_test():
+    first = claims.Paired(["a"] * 8, np.zeros(8), np.full(8, 0.1), 0.1, 0, 0)
+    looks = claims.Looks(first, first, 11)
+    p1 = claims.look_p(first, "better")
+    assert claims.row_p(looks, "better") == pytest.approx(min(1, 1.5 * min(p1, 2 * p1)))
+    assert claims.row_p(claims.Looks(first, None, None), "better") == p1
+
+
+def test_rows_with_bf16_distances_are_struck_and_mixed_precision_rows_marked():
+    judged = {j.claim["id"]: j for j in claims.judge(load_claims())}
+    struck = {i for i, j in judged.items() if j.verdict.startswith("no verdict: runs had")}
+    assert struck == {"fw-lpq-value", "fw-glpq-value", "fw-lpq-data", "fw-glpq-data",
+                      "fw-lpq-growth"}  # fmt: skip
+    for i in struck:  # each names the campaign items that run it again
+        assert "f1" in judged[i].claim["defect"] and "bf16" in judged[i].claim["defect"]
+    mixed = {i for i, j in judged.items() if "mixed_precision" in j.claim}
+    assert mixed == {"fig7.6-hot", "fig7.6-cold", "fig7.6-searing", "ch8-glpq-best",
+                     "fig6.5-ww-ff-default"}  # fmt: skip
+    page = (ROOT / "docs" / "claims.md").read_text()
+    marked = [row.split(" | ")[0][2:] for row in page.splitlines()
+              if row.startswith("| ") and "*precision mixed*:" in row]  # fmt: skip
+    assert set(marked) == mixed
+    plan = claims.tomllib.loads((ROOT / "results" / "campaign" / "plan.toml").read_text())
+    reruns = [line["config_from"] for item in plan["item"] if item["id"].startswith("f1")
+              for line in item["lines"]]  # fmt: skip
+    for i in struck:
+        assert judged[i].claim["line"] in reruns
+
+
+def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_rows():
+    page = (ROOT / "docs" / "claims.md").read_text()
+    heads = [line for line in page.splitlines() if line.startswith("## ")]
+    assert heads[:4] == ["## The answer: the thesis's conclusions",
+                         "## The confirmatory study: planned, not yet run",
+                         "## Exploratory rows", "## Method"]  # fmt: skip
+    answer = page.split("## The answer")[1].split("## ")[0]
+    table = [line for line in answer.splitlines() if line.startswith("| ")][1:]
+    data = load_claims()
+    assert len(table) == len(data["conclusion"]) >= 7
+    assert all(re.search(r"\| \*\*[a-z ]+\*\* \|", line) for line in table)  # a word or two
+    plan = claims.tomllib.loads(claims.CONFIRMATORY.read_text())
+    confirm = page.split("## The confirmatory study")[1].split("## ")[0]
+    for claim in plan["claim"]:
+        assert (
+            f"| {claim['id']} | " in confirm and f"{claim['runs']} ({claim['power']:.0%}" in confirm
+        )
+    assert confirm.count("**planned, not yet run**") == len(plan["claim"])
+
+
+def test_a_conclusions_verdict_combines_its_rows():
+    assert claims.combine(["reproduced", "reproduced"]) == "reproduced"
+    assert claims.combine(["reproduced", "no verdict"]) == "partly reproduced"
+    assert claims.combine(["contradicted", "inconclusive"]) == "partly contradicted"
+    assert claims.combine(["reproduced", "contradicted"]) == "mixed"
+    assert claims.combine(["inconclusive", "no verdict"]) == "inconclusive"
+    assert claims.combine(["no verdict"]) == "no verdict" and claims.combine([]) == "untested"

@@ -220,7 +220,8 @@ def sweep_command(
     _, own = run_as(figure, line)
     command = [*figure_sweeps.SWEEP, display(AGENTS / own.script), "--out"]
     command += [str(line_folder(Path(options.out), figure, game, line)), "--runs", str(runs)]
-    command += ["--total-timesteps", str(options.steps), "--seed", str(SEED)]
+    seed = getattr(options, "seed", None) or SEED  # a campaign item may name its own
+    command += ["--total-timesteps", str(options.steps), "--seed", str(seed)]
     command += ["--backend", options.backend]
     for flag, value in (("--address", options.address), ("--cpus", options.cpus)):
         if value is not None:

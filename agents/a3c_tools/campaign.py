@@ -11,14 +11,19 @@ a3c_tools.sweep and a3c_tools.atari_figures: a run already in a sweep's results.
 one that was cut off resumes from its checkpoint, so the command is the same in every session
 and stopping it (Ctrl-C, SIGTERM, the session's end) loses at most the runs in flight.
 
-Three kinds of item:
+Four kinds of item:
 - extend: each of its lines (a committed sweep folder) grows to `runs` runs with the line's own
   configuration, read from its sweep.json, so runs 0..k-1 are kept and run i draws what it drew
   before (sweep.py's seeding);
-- repeat: run 0 of a committed line again into a scratch folder and compare its score with the
-  committed one (with one worker a run is exactly repeatable, so a difference means the code
-  computes something else than when the line was made);
-- atari: atari_figures lines of one figure and game over `seeds` seeds of `steps` steps; after
+- repeat: run 0 (or the item's `run`) of a committed line again into a scratch folder and
+  compare its score with the committed one (with one worker a run is exactly repeatable, so a
+  difference means the code computes something else than when the line was made), and say
+  whether the two agree within the item's `agree_within` where it names one;
+- sweep: new lines whose configuration the plan gives in full (each line's script, out and
+  flags; the item's runs, seed, total_timesteps, samples and flags shared by its lines, so runs
+  pair up by run_id), as a pre-registered study needs;
+- atari: atari_figures lines of one figure and game over `seeds` seeds of `steps` steps (run
+  seeds `seed`, `seed` + 1000, ...: atari_figures' 1, 1001, ... unless the item names one); after
   each of its sweeps the figure is drawn again (`atari_figures FIG --plot-only`), which writes
   the figure's results.csv that the claims page's Atari rows read.
 
@@ -62,7 +67,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-KINDS = ("extend", "repeat", "atari")
+KINDS = ("extend", "repeat", "atari", "sweep")
 ALL = "**all**"  # the progress table's last row
 LOG_EVERY_S = 60.0  # how often a running sweep's SWEEPS.tsv row is brought up to date
 
@@ -162,16 +167,29 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
             command = extend_command(line["script"], out, int(entry["runs"]), where, source)
             first_look = int(line.get("first_look", 0))
             sweeps.append(Sweep(out, int(entry["runs"]), command, first_look, source))
+    elif kind == "sweep":  # a new line, its configuration in the plan itself
+        for line in entry.get("lines", []):
+            script = line["script"]
+            if not (ROOT / script).is_file():
+                raise DataError(f"{where}: no script {script}")
+            out = Path(line["out"])
+            command = ["-m", "a3c_tools.sweep", script, "--out", str(out),
+                       "--runs", str(int(entry["runs"])), "--seed", str(int(entry["seed"])),
+                       "--total-timesteps", str(int(entry["total_timesteps"]))]  # fmt: skip
+            for sample in entry.get("samples", []):
+                command += ["--sample", sample]
+            command += ["--", *line.get("flags", []), *entry.get("flags", [])]
+            sweeps.append(Sweep(out, int(entry["runs"]), command, 0, out))
     elif kind == "repeat":
-        scratch = Path(entry["out"])
-        command = extend_command(entry["script"], scratch, 1, where, Path(entry["source"]))
-        sweeps.append(Sweep(scratch, 1, command, 0, Path(entry["source"])))
+        scratch, runs = Path(entry["out"]), int(entry.get("run", 0)) + 1  # runs 0..run
+        command = extend_command(entry["script"], scratch, runs, where, Path(entry["source"]))
+        sweeps.append(Sweep(scratch, runs, command, 0, Path(entry["source"])))
     else:
         figure = af.by_id(entry["figure"])
         options = argparse.Namespace(
             out=entry["out"], steps=int(entry["steps"]), backend="local", address=None,
             cpus=None, eval_interval=af.EVAL_INTERVAL, eval_episodes=af.EVAL_EPISODES,
-            num_workers=int(entry["num_workers"]),
+            num_workers=int(entry["num_workers"]), seed=int(entry.get("seed", af.SEED)),
         )  # fmt: skip
         lines = {line.slug: line for line in figure.lines}
         for slug in entry["lines"]:
@@ -288,9 +306,16 @@ def repeat_report(items: list[Item], plan: Path) -> str:
         if not again:
             report.append(f"- {entry['id']}: not run yet")
             continue
-        a, b = float(again[0]["score"]), float(before[0]["score"])
+        index = int(entry.get("run", 0))
+        if len(again) <= index:
+            report.append(f"- {entry['id']}: not run yet")
+            continue
+        a, b = float(again[index]["score"]), float(before[index]["score"])
         same = "identical" if a == b else f"differs by {a - b:+.4f}"
-        report.append(f"- {entry['id']}: run 0 again {a:.4f}, committed {b:.4f}: {same}")
+        if "agree_within" in entry:  # the stated criterion for "the code still learns the same"
+            agree = abs(a - b) <= float(entry["agree_within"])
+            same += f" ({'agrees' if agree else 'DISAGREES'}: within {entry['agree_within']})"
+        report.append(f"- {entry['id']}: run {index} again {a:.4f}, committed {b:.4f}: {same}")
     return "\n".join(report) + "\n" if report else ""
 
 

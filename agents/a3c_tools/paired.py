@@ -28,7 +28,9 @@ Verdicts, from the interval and the expected direction:
 
 An inconclusive verdict states the runs per line that would decide it if the effect and the
 spread stayed as measured: the smallest n whose t(n - 1) sd / sqrt(n) puts the interval off 0
-(or the margin).
+(or the margin), about 50% power. `runs_for_power` gives the runs for a stated power instead
+(the noncentral t), `p_value` / `margin_p_value` the p-value of the test an interval inverts,
+and `holm` the adjustment of a family of them (the claims page uses these three).
 """
 
 from __future__ import annotations
@@ -154,6 +156,88 @@ def verdict(
     if needed is None:
         return f"inconclusive: more runs at this budget would not decide it (> {MAX_RUNS} per line)"
     return f"inconclusive: about {needed} runs per line would decide it"
+
+
+def p_value(differences: np.ndarray, null: float = 0.0) -> float:
+    """The two-sided paired t test's p-value of mean(d) = null over the paired differences: the
+    test whose confidence interval `interval` is (p < 1 - confidence exactly when the interval
+    excludes `null`). A row of identical differences gives 0 or 1."""
+    from scipy import stats
+
+    d = np.asarray(differences, dtype=float)
+    n = d.size
+    if n < 2:
+        raise ValueError(f"a t test needs 2 or more differences, got {n}")
+    se = d.std(ddof=1) / math.sqrt(n)
+    gap = abs(d.mean() - null)
+    if se == 0:
+        return 0.0 if gap > 0 else 1.0
+    return float(2 * stats.t.sf(gap / se, n - 1))
+
+
+def margin_p_value(differences: np.ndarray, margin: float = MARGIN) -> float:
+    """A "comparable" claim's p-value: the two-sided paired t test of |mean(d)| = margin, dual to
+    its verdict rule (the interval at 1 - p just touches the band's edge: p < 1 - confidence
+    exactly when the interval lies wholly inside +-margin or wholly outside it)."""
+    d = np.asarray(differences, dtype=float)
+    edge = margin if d.mean() >= 0 else -margin  # the band's edge nearest the mean
+    return p_value(d, edge)
+
+
+def holm(p_values: list[float]) -> list[float]:
+    """Holm's step-down adjusted p-values, in the order given: the k-th smallest of m is
+    max over j <= k of min(1, (m - j + 1) p_(j)). Rejecting where adjusted p < alpha keeps the
+    chance of any false rejection in the family at most alpha under any dependence between the
+    tests (Holm 1979)."""
+    m = len(p_values)
+    order = sorted(range(m), key=lambda i: p_values[i])
+    adjusted, running = [0.0] * m, 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p_values[i]))
+        adjusted[i] = running
+    return adjusted
+
+
+MAX_POWER_RUNS = 5000  # beyond this many runs per line, "more than" is said instead
+
+
+def power(effect: float, spread: float, runs: int, alpha: float) -> float:
+    """The power of the two-sided paired t test at level `alpha` over `runs` pairs, when the
+    differences have mean `effect` and standard deviation `spread`: P(|T| > t(1 - alpha/2,
+    n - 1)) with T noncentral t (n - 1 degrees of freedom, noncentrality effect sqrt(n) /
+    spread; `scipy.stats.nct`)."""
+    from scipy import stats
+
+    if runs < 2:
+        return 0.0
+    df, shift = runs - 1, effect * math.sqrt(runs) / spread
+    q = stats.t.ppf(1 - alpha / 2, df)
+    return float(stats.nct.sf(q, df, shift) + stats.nct.cdf(-q, df, shift))
+
+
+def runs_for_power(effect: float, spread: float, alpha: float, target: float = 0.8) -> int | None:
+    """The fewest runs per line (pairs, >= 2) at which the two-sided paired t test at level
+    `alpha` has at least `target` power for differences of mean `effect` and standard deviation
+    `spread`; None beyond MAX_POWER_RUNS (or for no effect)."""
+    if effect == 0 or spread <= 0:
+        return None if effect == 0 else 2
+    effect = abs(effect)
+
+    def enough(n: int) -> bool:
+        return power(effect, spread, n, alpha) >= target
+
+    high = 2
+    while not enough(high):  # doubling, then bisection: power grows with n
+        if high >= MAX_POWER_RUNS:
+            return None
+        high = min(2 * high, MAX_POWER_RUNS)
+    low = max(2, high // 2)
+    if enough(low):
+        return low
+    while high - low > 1:
+        mid = (low + high) // 2
+        low, high = (low, mid) if enough(mid) else (mid, high)
+    return high
 
 
 def game_of(env_id: str) -> str:

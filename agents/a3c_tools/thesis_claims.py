@@ -34,6 +34,18 @@ progress. Two looks at 95% each would give a row with no effect a directional ve
 often than 5%; at 95% then 97.5% the chance is at most 5% + 2.5% (the page states the rule, and
 tests/test_thesis_claims.py simulates it).
 
+Across the page (`judge`). Every row with an interval has a p-value, that of the two-sided
+paired t test its interval inverts (`look_p`; an extended row's two looks made one level-5% test,
+`row_p`), and Holm's adjusted p-value over the page's family of tests (`a3c_tools.paired.holm`);
+its verdict is taken at the adjusted level (ALPHA), and an inconclusive row gives the runs per
+line for 80% power at Holm's first level (`a3c_tools.paired.runs_for_power`). A row keeps its
+`history` (required: `check_rows` refuses a row without it), may re-use another row's runs
+(`same_runs_as`: not counted again in the tally, and a repeated test counted once in the
+family), may be struck (`defect`: no verdict until its runs are made again) or marked
+(`mixed_precision`). The page opens with chapter 8's conclusions (`[[conclusion]]`, each
+verdict combined from its rows), then the confirmatory study's primary claims (read from
+results/confirmatory/plan.toml), then every row, exploratory, then the method.
+
 The forest plot has one row per claim with an interval (the paired mean effect as a dot, the
 interval that gives its verdict as a bar, coloured by verdict, grouped by the page's sections);
 the rows without one are left off, and the caption under it counts them. It lives at
@@ -52,12 +64,23 @@ import json
 import re
 import sys
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from a3c_tools import run_main
 from a3c_tools.atari_figures import EVAL_EPISODES, SEED
-from a3c_tools.paired import MARGIN, SECOND_LOOK, Paired, pair, random_play, read_scores
+from a3c_tools.paired import (
+    MARGIN,
+    SECOND_LOOK,
+    Paired,
+    holm,
+    margin_p_value,
+    p_value,
+    pair,
+    random_play,
+    read_scores,
+    runs_for_power,
+)
 
 try:
     import tomllib
@@ -67,6 +90,10 @@ except ModuleNotFoundError:  # Python 3.10
 ROOT = Path(__file__).resolve().parents[2]  # the repository
 CLAIMS = Path(__file__).with_name("thesis_claims.toml")
 FIGURE = Path("img/claims_forest.png")  # the forest plot, relative to the page
+CONFIRMATORY = ROOT / "results" / "confirmatory" / "plan.toml"  # the pre-registered study
+ALPHA = 0.05  # the page's family-wise level: a verdict needs its Holm-adjusted p below it
+POWER = 0.8  # the power an inconclusive row's "runs per line" is computed for
+REQUIRED = ("id", "claim", "where", "form", "thesis", "history")  # every row's fields
 
 
 def scores(folder: str, column: str = "score") -> dict[str, float]:
@@ -273,6 +300,190 @@ def atari_line_evidence(claim: dict) -> tuple[str, str, str]:
     return ours, "-", f"contradicted: {learned} of {len(finals)} seeds left random play"
 
 
+def look_p(paired: Paired, expect: str) -> float:
+    """One look's p-value: the two-sided paired t test that its interval inverts (of 0 for
+    "better" / "worse", of |effect| = MARGIN for "comparable")."""
+    differences = paired.other - paired.base
+    if expect == "comparable":
+        return margin_p_value(differences)
+    return p_value(differences)
+
+
+def row_p(looks: Looks, expect: str) -> float | None:
+    """A row's p-value. One look: its look's. An extended row's two looks (95%, then 97.5%: at
+    most 7.5% together) scaled to one level-5% test by Bonferroni over its looks, 1.5 min(p1,
+    2 p2): rejecting below alpha means p1 < alpha / 1.5 or p2 < alpha / 3."""
+    if looks.decisive is None:
+        return None
+    first = look_p(looks.first, expect) if looks.first is not None else 1.0
+    if looks.extension is None:
+        return first
+    second = look_p(looks.second, expect) if looks.second is not None else 0.5
+    return min(1.0, 1.5 * min(first, 2 * second))
+
+
+@dataclass(frozen=True)
+class Judged:
+    """One row of the page as judged across the page: its evidence, its p-value and Holm's
+    adjusted one (None without an interval), the verdict at the adjusted level, and what its
+    interval alone (at its own level) would have said."""
+
+    claim: dict
+    section: str
+    ours: str
+    effect: str
+    p: float | None
+    adjusted: float | None
+    verdict: str
+    alone: str  # the verdict's head at the row's own level, before the adjustment
+
+
+def ids_of(claim: dict) -> list[str]:
+    """The rows whose runs a row re-uses (its `same_runs_as`: one id or a list)."""
+    same = claim.get("same_runs_as", [])
+    return [same] if isinstance(same, str) else list(same)
+
+
+def same_test(claim: dict, other: dict) -> bool:
+    """Whether a row re-uses another's runs for the very same test (same lines, same score)."""
+    keys = ("baseline", "line", "score", "atari", "expect")
+    return all(claim.get(key) == other.get(key) for key in keys)
+
+
+def check_rows(claims: dict) -> dict[str, dict]:
+    """id -> claim, after checking that every row has its required fields (its history
+    included: a row's history cannot be dropped in an edit) and that the ids it names exist."""
+    rows: dict[str, dict] = {}
+    for section in claims["section"]:
+        for claim in section["claim"]:
+            missing = [field for field in REQUIRED if not str(claim.get(field, "")).strip()]
+            if missing:
+                where = claim.get("id") or claim.get("where") or "a row"
+                raise ValueError(f"{where} in {CLAIMS.name} has no {', '.join(missing)}")
+            if claim["id"] in rows:
+                raise ValueError(f"row id {claim['id']!r} repeats in {CLAIMS.name}")
+            rows[claim["id"]] = claim
+    for claim in rows.values():
+        for other in ids_of(claim):
+            if other not in rows:
+                raise ValueError(f"{claim['id']}: same_runs_as names no row {other!r}")
+    return rows
+
+
+def distance(paired: Paired, expect: str) -> float:
+    """How far a row's effect is from deciding it: from 0, or for "comparable" from the band's
+    edge."""
+    return abs(abs(paired.effect) - MARGIN) if expect == "comparable" else abs(paired.effect)
+
+
+def power_note(paired: Paired, expect: str, level: float) -> str:
+    """The runs per line at which the row's test has 80% power at the page's level, if its
+    effect and spread stayed as measured."""
+    spread = float((paired.other - paired.base).std(ddof=1))
+    needed = runs_for_power(distance(paired, expect), spread, level, POWER)
+    if needed is None:
+        return f"no number of runs per line gives {POWER:.0%} power at {level:.2g} at this effect"
+    return f"about {needed} runs per line for {POWER:.0%} power at {level:.2g}"
+
+
+def combine(heads: list[str]) -> str:
+    """A conclusion's verdict from its rows' verdicts (their first words)."""
+    if not heads:
+        return "untested"
+    decided = {head for head in heads if head in ("reproduced", "contradicted")}
+    if decided == {"reproduced", "contradicted"}:
+        return "mixed"
+    if decided:
+        [head] = decided
+        return head if all(h == head for h in heads) else f"partly {head}"
+    return "no verdict" if all(h == "no verdict" for h in heads) else "inconclusive"
+
+
+def judge(claims: dict) -> list[Judged]:
+    """Every row of the page, judged across the page: each row with an interval gets its
+    p-value and Holm's adjusted p-value over the family of the page's tests (every row with an
+    interval, a row that repeats another's very test counted once), and its verdict at the
+    adjusted level (ALPHA); a row whose runs had a known defect (`defect`) gets none."""
+    rows = check_rows(claims)
+    entries = []
+    for section in claims["section"]:
+        for claim in section["claim"]:
+            looks = compared(claim)
+            paired = looks.decisive if looks is not None else None
+            p = row_p(looks, claim["expect"]) if paired is not None else None
+            entries.append((section["title"], claim, looks, paired, p, evidence(claim)))
+    family = [i for i, (_, claim, _, _, p, _) in enumerate(entries) if p is not None
+              and not any(same_test(claim, rows[other]) for other in ids_of(claim))]  # fmt: skip
+    adjusted = dict(zip(family, holm([entries[i][4] for i in family]), strict=True))
+    index = {claim["id"]: i for i, (_, claim, *_) in enumerate(entries)}
+    level = ALPHA / max(len(family), 1)  # Holm's first step: the level a new look must meet
+    judged: list[Judged] = []
+    for i, (title, claim, looks, paired, p, (ours, effect, own)) in enumerate(entries):
+        twin = next((index[o] for o in ids_of(claim) if same_test(claim, rows[o])), None)
+        adj = adjusted.get(i, adjusted.get(twin) if twin is not None else None)
+        alone, verdict = head_of(own), own
+        if "defect" in claim:
+            verdict = f"no verdict: runs had a known defect ({claim['defect']})"
+        elif adj is not None and not alone.startswith("no verdict"):
+            expect = claim["expect"]
+            if adj < ALPHA:
+                if expect == "comparable":
+                    verdict = "reproduced" if abs(paired.effect) < MARGIN else "contradicted"
+                else:
+                    sign = 1 if expect == "better" else -1
+                    verdict = "reproduced" if sign * paired.effect > 0 else "contradicted"
+            else:
+                verdict = "inconclusive: "
+                if alone in ("reproduced", "contradicted"):
+                    verdict += f"{alone} by its interval alone, not after Holm; "
+                verdict += power_note(paired, expect, level)
+            if looks.extension is not None and looks.second is None:
+                verdict += f"; extension to {looks.extension} runs in progress (campaign)"
+        judged.append(Judged(claim, title, ours, effect, p, adj, verdict, alone))
+    for i, row in enumerate(judged):  # a judgement over other rows, once they are judged
+        if "baseline" not in row.claim and ids_of(row.claim):
+            heads = [head_of(judged[index[o]].verdict) for o in ids_of(row.claim)]
+            verdict = f"{combine(heads)}: from rows {', '.join(ids_of(row.claim))}"
+            judged[i] = replace(row, verdict=verdict)
+    return judged
+
+
+def family_size(judged: list[Judged]) -> int:
+    """The number of tests Holm's adjustment runs over."""
+    return len(
+        {
+            id(j.claim)
+            for j in judged
+            if j.p is not None
+            and not any(
+                same_test(j.claim, o.claim) for o in judged if o.claim["id"] in ids_of(j.claim)
+            )
+        }
+    )
+
+
+def chance_verdicts(judged: list[Judged]) -> float:
+    """The directional verdicts expected by chance alone, were no line different from its
+    baseline: each directional test's level (5%; 7.5% for an extended row's two looks)."""
+    total = 0.0
+    for j in judged:
+        if (
+            j.p is None
+            or j.claim["expect"] == "comparable"
+            or any(same_test(j.claim, o.claim) for o in judged if o.claim["id"] in ids_of(j.claim))
+        ):
+            continue
+        total += 0.075 if "extend" in j.claim else 0.05
+    return total
+
+
+def shown_p(p: float | None) -> str:
+    """A p-value as the page shows it: 2 significant digits, '< 0.0001' below."""
+    if p is None:
+        return "-"
+    return "< 0.0001" if p < 0.0001 else f"{p:.2g}"
+
+
 def link(folder: str) -> str:
     """A docs-relative link to a results folder's results.csv."""
     return f"../{folder}/results.csv"
@@ -288,12 +499,95 @@ def head_of(call: str) -> str:
     return re.split(r"[:;]", call, maxsplit=1)[0]
 
 
-def tally(verdicts: list[str]) -> str:
-    """How many rows have each verdict: "**At a glance**: 3 rows: 2 reproduced, 1 ..."."""
-    counts = Counter(head_of(call) for call in verdicts)
+def tally(judged: list[Judged]) -> str:
+    """How many experiments have each verdict (a row that re-uses another row's runs is not
+    counted again): "**At a glance**: 3 experiments: 2 reproduced, 1 ..., in 4 rows (...)"."""
+    counted = [j for j in judged if not ids_of(j.claim)]
+    counts = Counter(head_of(j.verdict) for j in counted)
     heads = [*VERDICTS, *sorted(set(counts) - set(VERDICTS))]
     parts = ", ".join(f"{counts[head]} {head}" for head in heads if counts[head])
-    return f"**At a glance**: {len(verdicts)} rows: {parts}."
+    again = [j.claim["id"] for j in judged if ids_of(j.claim)]
+    text = f"**At a glance**: {len(counted)} experiments: {parts}, in {len(judged)} rows"
+    if again:
+        text += f" ({len(again)} re-use another row's runs and are not counted again: "
+        text += ", ".join(again) + ")"
+    return text + "."
+
+
+def multiplicity(judged: list[Judged]) -> str:
+    """The lead's sentence on multiplicity: the tests, what chance alone would give, and which
+    verdicts survive Holm's adjustment."""
+    size = family_size(judged)
+    decided = [j for j in judged if j.adjusted is not None
+               and head_of(j.verdict) in ("reproduced", "contradicted")]  # fmt: skip
+    alone = [j for j in judged if j.adjusted is not None and not any(
+        same_test(j.claim, o.claim) for o in judged if o.claim["id"] in ids_of(j.claim))
+        and j.alone in ("reproduced", "contradicted")]  # fmt: skip
+    survive = (", ".join(f"{j.claim['id']} ({head_of(j.verdict)})" for j in decided)
+               if decided else "none")  # fmt: skip
+    struck = [j.claim["id"] for j in judged if "defect" in j.claim and j.adjusted is not None
+              and j.adjusted < ALPHA]  # fmt: skip
+    if struck:
+        survive += (
+            f"; {len(struck)} more would ({', '.join(struck)}) but are struck for a known defect"
+        )
+    survives = "verdict survives" if len(decided) == 1 else "verdicts survive"
+    return (
+        f"**Multiplicity.** The page makes {size} tests (one per row with an interval, a row "
+        f"that repeats another's very test counted once). Were no line different from its "
+        f"baseline anywhere, chance alone would give about {chance_verdicts(judged):.1f} "
+        f"directional verdicts among them at each row's own level. {len(alone)} rows are "
+        f"decided by their own interval; adjusted across the page by Holm's method (family-wise "
+        f"error at most {ALPHA:g}), {len(decided)} {survives}: {survive}. The verdicts "
+        "below are the adjusted ones; each row still shows its unadjusted 95% interval."
+    )
+
+
+def conclusions(claims: dict, judged: list[Judged]) -> list[str]:
+    """The page's opening table: each of the thesis's conclusions, our verdict in a word (from
+    the rows it rests on) and those rows."""
+    by_id = {j.claim["id"]: j for j in judged}
+    out = ["| the thesis concludes (chapter 8) | our verdict | rests on | confirmatory test |",
+           "|---|---|---|---|"]  # fmt: skip
+    for conclusion in claims.get("conclusion", []):
+        rows = conclusion.get("rows", [])
+        unknown = [row for row in rows if row not in by_id]
+        if unknown:
+            raise ValueError(f"conclusion {conclusion['claim']!r} names no row {unknown}")
+        word = combine([head_of(by_id[row].verdict) for row in rows])
+        rests = ", ".join(f"{row} ({head_of(by_id[row].verdict)})" for row in rows)
+        out.append(f"| {' '.join(conclusion['claim'].split())} | **{word}** | "
+                   f"{rests or conclusion.get('none', 'no row')} | "
+                   f"{conclusion.get('primary', '-')} |")  # fmt: skip
+    return out
+
+
+def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
+    """The confirmatory section's table, from the pre-registered plan: each primary claim, its
+    experiment, the effect it must detect, its runs per line and power, and its status."""
+    if not plan_path.is_file():
+        return []
+    from a3c_tools.confirmatory import outcomes
+
+    plan = tomllib.loads(plan_path.read_text())
+    found = outcomes(plan)  # None until every claim's runs are in: one look
+    out = ["| id | primary claim | experiment | effect to detect | runs per line (power) | "
+           "effect [95% t interval], p (Holm) | verdict |",
+           "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for i, claim in enumerate(plan.get("claim", [])):
+        result, verdict = "-", "**planned, not yet run**"
+        if found is not None:
+            o = found[i]
+            f = ".3f" if "atari" not in claim["test"] else ".1f"
+            result = (f"{o.effect:+{f}} [{o.low:+{f}}, {o.high:+{f}}] (n = {o.pairs}), "
+                      f"{shown_p(o.p)} ({shown_p(o.adjusted)})")  # fmt: skip
+            verdict = f"**{o.verdict}**"
+        cells = [claim["id"], claim["claim"], claim["experiment"],
+                 f"{claim['effect']:+g} ({claim['effect_basis']})".replace("+0 (", "0 ("),
+                 f"{claim['runs']} ({claim['power']:.0%} at {claim['level']:.4f})",
+                 result, verdict]  # fmt: skip
+        out.append("| " + " | ".join(" ".join(str(c).split()) for c in cells) + " |")
+    return out
 
 
 # The forest plot. Colours by the verdict's first word; the checks compare them with the page.
@@ -338,18 +632,19 @@ def label(claim: dict) -> str:
 
 
 def forest_points(claims: dict) -> list[Point]:
-    """The forest plot's rows, in the page's order: every claim with an interval."""
+    """The forest plot's rows, in the page's order: every Catch claim with an interval, coloured
+    by its verdict at the page's adjusted level."""
     points = []
-    for section in claims["section"]:
-        for claim in section["claim"]:
-            looks = compared(claim)
-            paired = looks.decisive if looks is not None else None
-            if paired is None or "atari" in claim:  # an Atari row's effect is in game score
-                continue
-            verdict = head_of(looks.verdict(claim["expect"]))
-            effect, low, high = (round(x, 3) for x in (paired.effect, paired.low, paired.high))
-            points.append(Point(section["title"], label(claim), effect, low, high, verdict,
-                                COLOURS[verdict]))  # fmt: skip
+    for judged in judge(claims):
+        claim = judged.claim
+        looks = compared(claim)
+        paired = looks.decisive if looks is not None else None
+        if paired is None or "atari" in claim:  # an Atari row's effect is in game score
+            continue
+        verdict = head_of(judged.verdict)
+        effect, low, high = (round(x, 3) for x in (paired.effect, paired.low, paired.high))
+        points.append(Point(judged.section, label(claim), effect, low, high, verdict,
+                            COLOURS[verdict]))  # fmt: skip
     return points
 
 
@@ -437,8 +732,9 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
     drawn = len(rows) - sum(sum(counts.values()) for counts in left_off.values())
     text = (
         f"*The {drawn} Catch rows with an interval: the paired mean effect (line - baseline, "
-        f"in Catch score) with its t interval (95%; {100 * SECOND_LOOK:g}% at an extended "
-        "row's second look), coloured by verdict; a label reads as the claim (line > "
+        f"in Catch score) with its unadjusted t interval (95%; {100 * SECOND_LOOK:g}% at an "
+        "extended row's second look), coloured by its verdict at the page's Holm-adjusted "
+        "level; a label reads as the claim (line > "
         f"baseline for better, < for worse, \u2248 for comparable: within the band of "
         f"\u00b1{MARGIN})."
     )
@@ -452,33 +748,52 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
 
 
 def render(claims: dict) -> str:
-    """The whole page, in Markdown."""
-    rows = [evidence(claim) for section in claims["section"] for claim in section["claim"]]
-    out, missing = [claims["intro"].strip(), "", tally([call for *_, call in rows]), ""], {}
+    """The whole page, in Markdown: the answer (the thesis's conclusions and our verdicts), the
+    confirmatory study, the exploratory rows with their forest plot, then the method."""
+    judged = judge(claims)
+    rows = [(j.ours, j.effect, j.verdict) for j in judged]
+    out = [claims["intro"].strip(), "", "## The answer: the thesis's conclusions", ""]
+    out += [claims.get("answer", "").strip(), "", *conclusions(claims, judged), ""]
+    out += [tally(judged), "", multiplicity(judged), ""]
+    table = confirmatory()
+    if table:
+        out += ["## The confirmatory study: planned, not yet run", ""]
+        out += [claims.get("confirmatory", "").strip(), "", *table, ""]
+    out += ["## Exploratory rows", "", claims.get("exploratory", "").strip(), ""]
     if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
         out += [f"![The claims' effects with their intervals]({FIGURE.as_posix()})", ""]
         out += [caption(claims, rows), ""]
-    next_row = iter(rows)
+    missing: dict[str, list[str]] = {}
+    next_row = iter(judged)
     for section in claims["section"]:
-        out += [f"## {section['title']}", ""]
+        out += [f"### {section['title']}", ""]
         if "text" in section:
             out += [section["text"].strip(), ""]
         out += [
-            "| claim | where | form | thesis's evidence | ours | effect [t interval] | verdict |",
-            "|---|---|---|---|---|---|---|",
+            "| id | claim | where | form | thesis's evidence | ours | effect [t interval] | "
+            "p (Holm) | verdict | history |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for claim in section["claim"]:
-            ours, effect, call = next(next_row)
+            row = next(next_row)
+            call = row.verdict
             if head_of(call) == "not run yet" and "command" in claim:
                 game = f" ({claim['atari']['game']})" if "atari" in claim else ""
                 missing.setdefault(claim["command"], []).append(claim["where"] + game)
             head = head_of(call)
-            rest = call[len(head) :]
-            verdict_cell = f"**{head}**{rest}"
-            cells = [claim["claim"], claim["where"], claim.get("form", "-"), claim["thesis"],
-                     ours, effect, verdict_cell]  # fmt: skip
+            verdict_cell = f"**{head}**{call[len(head) :]}"
+            if "mixed_precision" in claim:
+                verdict_cell += f"; *precision mixed*: {claim['mixed_precision']}"
+            p_cell = "-" if row.p is None else f"{shown_p(row.p)} ({shown_p(row.adjusted)})"
+            history = claim["history"]
+            if ids_of(claim):
+                history = f"re-uses the runs of {', '.join(ids_of(claim))}; {history}"
+            cells = [claim["id"], claim["claim"], claim["where"], claim.get("form", "-"),
+                     claim["thesis"], row.ours, row.effect, p_cell, verdict_cell,
+                     history]  # fmt: skip
             out.append("| " + " | ".join(" ".join(cell.split()) for cell in cells) + " |")
         out.append("")
+    out += ["## Method", "", claims.get("method", "").strip(), ""]
     out.append(claims["outro"].strip())
     if missing:  # the sentence that introduces the list only with a list to introduce
         out += ["", claims.get("missing", "The rows *not run yet*, and their commands:").strip()]

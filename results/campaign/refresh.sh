@@ -8,3 +8,4 @@ set -euo pipefail
 python -m a3c_tools.thesis_claims -o docs/claims.md
 python -m a3c_tools.future_work_summary > results/future_work_catch/summary.txt
 python -m a3c_tools.campaign results/campaign/plan.toml --status
+python -m a3c_tools.confirmatory results/confirmatory/plan.toml --check

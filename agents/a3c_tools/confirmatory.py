@@ -1,0 +1,326 @@
+"""The confirmatory study's numbers: for each primary claim of results/confirmatory/plan.toml,
+the spread of its committed paired differences, the runs per line for the plan's power at the
+family's Holm-corrected level, and the power those runs give; and the check that the plan holds
+these numbers and that its run seeds are new.
+
+    python -m a3c_tools.confirmatory results/confirmatory/plan.toml          # the table
+    python -m a3c_tools.confirmatory results/confirmatory/plan.toml --check  # exit 1 if stale
+
+A claim's `spread_from` names the committed runs whose paired differences give the spread:
+`baseline` and `line` (Catch results folders, runs 0..runs-1 paired by run_id), or `lines` for a
+composite claim (the mean over those lines, run by run, against the baseline), or `atari` (a
+figure's results.csv, `game`, `baseline` and `line`, paired by seed). The runs per line are the
+fewest for which the two-sided paired t test at the level alpha / (the number of primary
+claims), Holm's first and strictest step, has at least the plan's power at the claim's
+`effect` (a3c_tools.paired.runs_for_power; for "comparable", the distance of `effect` from the
+band's edge), capped at the plan's `max_runs` (the power at the cap is then stated). A run seed
+is new when no committed results.csv under results/ has it in its `seed` column.
+
+The analysis is fixed here too (`outcomes`): one look, once every claim's `test` runs are in,
+the same paired t test as the claims page's, Holm over the family, a verdict where the adjusted
+p is below alpha; the claims page shows it (until then, "planned, not yet run").
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from a3c_tools import ROOT, run_main
+from a3c_tools.paired import (
+    MARGIN,
+    holm,
+    interval,
+    margin_p_value,
+    p_value,
+    power,
+    read_scores,
+    runs_for_power,
+)
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+PLAN = ROOT / "results" / "confirmatory" / "plan.toml"
+STRIDE = 1000  # sweep.py's and atari_figures' run seeds: seed + 1000 i
+
+
+def catch_differences(spec: dict) -> np.ndarray:
+    """The committed paired differences (line - baseline, or the lines' mean - baseline) over
+    runs 0..runs-1 of a Catch spec."""
+    ids = [f"run-{i:04d}" for i in range(int(spec["runs"]))]
+    base = read_scores(ROOT / spec["baseline"] / "results.csv")
+    lines = [read_scores(ROOT / f / "results.csv") for f in spec.get("lines", [spec.get("line")])]
+    ids = [i for i in ids if i in base and all(i in line for line in lines)]
+    if not ids:
+        return np.array([])
+    other = np.array([[line[i] for i in ids] for line in lines]).mean(axis=0)
+    return other - np.array([base[i] for i in ids])
+
+
+def complete(spec: dict, runs: int) -> bool:
+    """Whether every run a claim's test needs is in (ok or failed): Catch lines hold runs
+    0..runs-1, an Atari figure every seed of both lines at the steps."""
+    if "atari" in spec:
+        return atari_differences({**spec, "runs": runs}).size == runs
+    folders = [spec["baseline"], *spec.get("lines", [spec.get("line")])]
+    for folder in folders:
+        table = ROOT / folder / "results.csv"
+        if not table.is_file():
+            return False
+        with open(table, newline="") as f:
+            done = {row["run_id"] for row in csv.DictReader(f)}
+        if not {f"run-{i:04d}" for i in range(runs)} <= done:
+            return False
+    return True
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """A primary claim's result at the study's one look."""
+
+    id: str
+    pairs: int
+    effect: float
+    low: float
+    high: float
+    p: float
+    adjusted: float
+    verdict: str
+
+
+def outcomes(plan: dict) -> list[Outcome] | None:
+    """The study's one look: None until every claim's runs are all in; then per claim the
+    paired mean difference with its 95% t interval, its two-sided paired t p-value (for
+    "comparable", of |difference| = 0.05), Holm's adjusted p over the family, and the verdict
+    at the family's level (`alpha`)."""
+    claims, alpha = plan["claim"], plan["study"]["alpha"]
+    if not all(complete(c["test"], c["runs"]) for c in claims):
+        return None
+    found = []
+    for claim in claims:
+        d = differences({**claim["test"], "runs": claim["runs"]})
+        test = margin_p_value if claim["expect"] == "comparable" else p_value
+        low, high = interval(d)
+        found.append((claim, d, test(d), low, high))
+    adjusted = holm([p for _, _, p, _, _ in found])
+    result = []
+    for (claim, d, p, low, high), adj in zip(found, adjusted, strict=True):
+        effect = float(d.mean())
+        verdict = "inconclusive"
+        if adj < alpha and claim["expect"] == "comparable":
+            verdict = "reproduced" if abs(effect) < MARGIN else "contradicted"
+        elif adj < alpha:
+            sign = 1 if claim["expect"] == "better" else -1
+            verdict = "reproduced" if sign * effect > 0 else "contradicted"
+        result.append(Outcome(claim["id"], d.size, effect, low, high, p, adj, verdict))
+    return result
+
+
+def atari_differences(spec: dict) -> np.ndarray:
+    """The paired differences of two lines of an Atari figure on one game, by seed (with `seed`,
+    `runs` and `steps` in the spec: only seeds seed + 1000 i, i < runs, that reached the steps)."""
+    finals: dict[str, dict[int, float]] = {}
+    table = ROOT / spec["atari"] / "results.csv"
+    if not table.is_file():
+        return np.array([])
+    wanted = None
+    if "seed" in spec:
+        wanted = {int(spec["seed"]) + STRIDE * i for i in range(int(spec["runs"]))}
+    with open(table, newline="") as f:
+        for row in csv.DictReader(f):
+            if row["game"] != spec["game"] or (
+                wanted is not None and int(row["seed"]) not in wanted
+            ):
+                continue
+            if int(row.get("final_step") or 0) < int(spec.get("steps", 0)):
+                continue
+            finals.setdefault(row["line"], {})[int(row["seed"])] = float(row["final_score"])
+    base, line = finals.get(spec["baseline"], {}), finals.get(spec["line"], {})
+    seeds = sorted(set(base) & set(line))
+    return np.array([line[s] - base[s] for s in seeds])
+
+
+def differences(spec: dict) -> np.ndarray:
+    return atari_differences(spec) if "atari" in spec else catch_differences(spec)
+
+
+@dataclass(frozen=True)
+class Planned:
+    """A primary claim's computed plan: the committed spread (and its pairs), the level, the
+    runs per line and the power they give."""
+
+    id: str
+    pairs: int
+    spread: float
+    level: float
+    runs: int
+    power: float
+
+
+def plan_claim(claim: dict, size: int, study: dict) -> Planned:
+    """The runs per line for a primary claim, in a family of `size` claims."""
+    d = differences(claim["spread_from"])
+    if d.size < 3:
+        raise ValueError(f"{claim['id']}: {d.size} committed pairs, fewer than 3 give no spread")
+    spread = float(d.std(ddof=1))
+    level = study["alpha"] / size
+    effect = float(claim["effect"])
+    gap = abs(MARGIN - abs(effect)) if claim["expect"] == "comparable" else abs(effect)
+    most = int(claim.get("max_runs", study["max_runs"]))
+    needed = runs_for_power(gap, spread, level, study["power"])
+    runs = most if needed is None or needed > most else max(needed, 3)
+    return Planned(claim["id"], int(d.size), spread, level, runs, power(gap, spread, runs, level))
+
+
+def committed_seeds(root: Path = ROOT / "results") -> set[int]:
+    """Every run seed in a committed results.csv under `root` (its `seed` column)."""
+    seeds: set[int] = set()
+    for table in root.rglob("results.csv"):
+        with open(table, newline="") as f:
+            for row in csv.DictReader(f):
+                value = (row.get("seed") or "").strip()
+                if value.lstrip("-").isdigit():
+                    seeds.add(int(value))
+    return seeds
+
+
+def plan_seeds(plan: dict) -> set[int]:
+    """The run seeds the plan's items will use."""
+    seeds = set()
+    for item in plan.get("item", []):
+        runs = int(item.get("runs", item.get("seeds", 0)))
+        seeds |= {int(item["seed"]) + STRIDE * i for i in range(runs)}
+    return seeds
+
+
+def problems(plan: dict, plan_path: Path) -> list[str]:
+    """What in the plan disagrees with the committed runs: a claim's runs, power or level
+    other than computed, a line with fewer runs than its claims need, or a seed already used."""
+    out = []
+    claims, study = plan["claim"], plan["study"]
+    for claim in claims:
+        done = plan_claim(claim, len(claims), study)
+        stated = (claim["runs"], round(claim["power"], 2), round(claim["level"], 5))
+        if stated != (done.runs, round(done.power, 2), round(done.level, 5)):
+            computed = f"{done.runs}, {done.power:.2f}, {done.level:.5f}"
+            out.append(f"{claim['id']}: the plan says runs, power, level {stated}, the "
+                       f"committed runs give {computed}")  # fmt: skip
+        items = {item["id"]: item for item in plan.get("item", [])}
+        made = {line["out"] for i in claim["items"] if i in items
+                for line in items[i].get("lines", []) if isinstance(line, dict)}  # fmt: skip
+        atari = [items[i] for i in claim["items"] if i in items and items[i]["kind"] == "atari"]
+        made |= {f"{a['out']}/{a['figure']}:{line}" for a in atari for line in a["lines"]}
+        test = claim["test"]
+        if "atari" in test:
+            needed = {f"{test['atari']}:{line}" for line in (test["baseline"], test["line"])}
+            needed -= {f"{test['atari']}:ff"} if any(m.endswith(":ff") for m in made) else set()
+        else:
+            needed = {test["baseline"], *test.get("lines", [test.get("line")])}
+        if not needed <= made:
+            out.append(
+                f"{claim['id']}: its test reads {sorted(needed - made)}, which no item makes"
+            )
+        for item_id in claim["items"]:
+            item = items.get(item_id)
+            if item is None:
+                out.append(f"{claim['id']}: no item {item_id} in {plan_path}")
+            elif int(item.get("runs", item.get("seeds", 0))) < claim["runs"]:
+                out.append(f"{claim['id']}: item {item_id} has fewer runs than {claim['runs']}")
+    used = sorted(plan_seeds(plan) & committed_seeds())
+    if used:
+        out.append(f"run seeds already used by committed runs: {used[:10]}")
+    return out
+
+
+def cpu_hours(item: dict) -> float:
+    """An item's estimated CPU-hours: its runs (per line) x its steps at the steps/s its
+    `rate_from` lines' committed runs had (final_step / wall_time_s, times their workers), one
+    rate per line, in order."""
+    runs = int(item.get("runs", item.get("seeds", 0)))
+    steps = int(item.get("total_timesteps", item.get("steps", 0)))
+    total = 0.0
+    for folder in item["rate_from"]:
+        with open(ROOT / folder / "results.csv", newline="") as f:
+            rows = [row for row in csv.DictReader(f) if row.get("status", "ok") == "ok"]
+        workers = int(item.get("num_workers", 1))
+        seconds = [float(r["wall_time_s"]) / float(r["final_step"]) for r in rows]
+        total += runs * steps * workers * sum(seconds) / len(seconds) / 3600
+    return total
+
+
+def compute(plan: dict) -> str:
+    """The study's compute: CPU-hours per item from this machine's committed runs, and device
+    minutes at the plan's stated rate (an estimate until the batched backend is measured)."""
+    rates = plan["study"]["device_steps_per_s"]
+    lines = ["| item | runs per line x lines | steps a run | CPU-hours | device minutes (est.) |",
+             "|---|---|---|---|---|"]  # fmt: skip
+    hours = minutes = 0.0
+    for item in plan.get("item", []):
+        runs = int(item.get("runs", item.get("seeds", 0)))
+        steps = int(item.get("total_timesteps", item.get("steps", 0)))
+        count = len(item["rate_from"])
+        h = cpu_hours(item)
+        m = runs * steps * count / rates[item["kind"]] / 60
+        hours, minutes = hours + h, minutes + m
+        lines.append(f"| {item['id']} | {runs} x {count} | {steps:,} | {h:.1f} | {m:.0f} |")
+    lines.append(f"| **all** | | | **{hours:.1f}** | **{minutes:.0f}** |")
+    return "\n".join(lines) + "\n"
+
+
+def table(plan: dict) -> str:
+    claims, study = plan["claim"], plan["study"]
+    lines = ["| claim | committed pairs | spread (sd of differences) | level | runs per line "
+             "| power |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for claim in claims:
+        done = plan_claim(claim, len(claims), study)
+        lines.append(f"| {done.id} | {done.pairs} | {done.spread:.4g} | {done.level:.5f} | "
+                     f"{done.runs} | {done.power:.2f} |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m a3c_tools.confirmatory", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("plan", type=Path, nargs="?", default=PLAN, help="the plan (TOML)")
+    parser.add_argument(
+        "--check", action="store_true",
+        help="exit 1 if the plan's numbers or seeds disagree with the committed runs",
+    )  # fmt: skip
+    opts = parser.parse_args(argv)
+    try:
+        plan = tomllib.loads(opts.plan.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as error:
+        print(f"{opts.plan}: {error}", file=sys.stderr)
+        return 2
+    try:
+        return report(plan, opts.plan, opts.check)
+    except (KeyError, ValueError, OSError) as error:  # a plan short of a field or a folder
+        what = f"no {error}" if isinstance(error, KeyError) else str(error)
+        print(f"{opts.plan}: {what}", file=sys.stderr)
+        return 2
+
+
+def report(plan: dict, path: Path, check: bool) -> int:
+    """Print the plan's numbers, or with `check` what disagrees; the exit code."""
+    if check:
+        found = problems(plan, path)
+        for problem in found:
+            print(problem)
+        if not found:
+            print(f"{path} holds what the committed runs give, and its seeds are new")
+        return 1 if found else 0
+    sys.stdout.write(table(plan) + "\n" + compute(plan))
+    return 0
+
+
+if __name__ == "__main__":
+    run_main(main)

@@ -1,0 +1,149 @@
+"""Tests of a3c_tools.confirmatory: the pre-registered plan (results/confirmatory/plan.toml) holds
+the runs per line that the committed runs' spread gives for 80% power at the Holm level, its
+run seeds are new, and its items are the campaign's (load and pair up)."""
+
+import numpy as np
+import pytest
+from a3c_tools import campaign, confirmatory, paired
+from conftest import ROOT, run_main
+
+PLAN = ROOT / "results" / "confirmatory" / "plan.toml"
+
+
+def plan() -> dict:
+    return confirmatory.tomllib.loads(PLAN.read_text())
+
+
+def test_the_committed_plan_passes_its_check():
+    done = run_main(confirmatory.main, [str(PLAN), "--check"])
+    assert done.returncode == 0, done.stdout
+    assert "holds what the committed runs give, and its seeds are new" in done.stdout
+
+
+def test_each_claims_runs_are_the_fewest_for_80_percent_power_at_the_holm_level():
+    data = plan()
+    claims = data["claim"]
+    assert [c["id"] for c in claims] == [f"P{i}" for i in range(1, 10)]
+    for claim in claims:
+        d = confirmatory.differences(claim["spread_from"])
+        level = 0.05 / len(claims)  # Holm's first step over the family
+        gap = abs(claim["effect"]) if claim["expect"] != "comparable" else paired.MARGIN
+        cap = claim.get("max_runs", data["study"]["max_runs"])
+        n = claim["runs"]
+        assert claim["level"] == pytest.approx(level, abs=1e-5)
+        got = paired.power(gap, d.std(ddof=1), n, level)
+        assert claim["power"] == pytest.approx(got, abs=0.005)
+        if n < cap:  # the fewest: one run fewer falls short
+            assert got >= 0.8 > paired.power(gap, d.std(ddof=1), n - 1, level)
+        for item in (i for i in data["item"] if i["id"] in claim["items"]):
+            assert item.get("runs", item.get("seeds")) >= n
+
+
+def test_the_composite_claim_pairs_the_mean_of_its_lines_run_by_run():
+    spec = plan()["claim"][0]["spread_from"]
+    base = paired.read_scores(ROOT / spec["baseline"] / "results.csv")
+    lines = [paired.read_scores(ROOT / f / "results.csv") for f in spec["lines"]]
+    ids = [f"run-{i:04d}" for i in range(8)]
+    expected = [np.mean([line[i] for line in lines]) - base[i] for i in ids]
+    assert confirmatory.differences(spec) == pytest.approx(expected)
+
+
+def test_the_check_fails_on_a_changed_number_or_a_used_seed(tmp_path):
+    text = PLAN.read_text()
+    changed = tmp_path / "plan.toml"
+    changed.write_text(text.replace("runs = 16\npower", "runs = 12\npower", 1))
+    done = run_main(confirmatory.main, [str(changed), "--check"])
+    assert done.returncode == 1 and "P1: the plan says runs, power, level (12" in done.stdout
+    changed.write_text(text.replace("seed = 7600", "seed = 1"))  # atari_figures' and sweeps'
+    done = run_main(confirmatory.main, [str(changed), "--check"])
+    assert done.returncode == 1 and "run seeds already used by committed runs: [1, " in done.stdout
+    assert 1 in confirmatory.committed_seeds() and 7500 not in confirmatory.committed_seeds()
+    old = 'test = { baseline = "results/confirmatory/catch/lpq_low_lr"'
+    changed.write_text(text.replace(old, old.replace("lpq_low_lr", "nowhere")))
+    done = run_main(confirmatory.main, [str(changed), "--check"])
+    assert done.returncode == 1 and "P4: its test reads ['results/confirmatory/catch/nowhere']" \
+        in done.stdout  # fmt: skip
+
+
+def test_the_plans_items_are_the_campaigns_with_new_seeds_and_paired_lines():
+    items = {item.id: item for item in campaign.load_plan(PLAN)}
+    seeds = {}
+    for item in items.values():
+        for sweep in item.sweeps:
+            command = sweep.command
+            seeds[sweep.out] = int(command[command.index("--seed") + 1])
+            assert command[command.index("--total-timesteps") + 1] in ("1000000", "2000000")
+            if item.kind == "sweep":  # float32, as the thesis ran
+                assert command[-2:] == ["--precision", "fp32"] or "fp32" in command
+    assert set(seeds.values()) == {7500, 7600, 7700, 7800}
+    assert all(seed % 1000 != 1 for seed in seeds.values())  # every committed seed is 1 + 1000 i
+
+
+def test_the_compute_table_counts_each_items_runs_at_its_committed_rate():
+    data = plan()
+    item = next(i for i in data["item"] if i["id"] == "c3-glpq-searing")
+    rows = [r for r in campaign.read_rows(ROOT / item["rate_from"][0]) if r["status"] == "ok"]
+    per_step = np.mean([float(r["wall_time_s"]) / float(r["final_step"]) for r in rows])
+    assert confirmatory.cpu_hours(item) == pytest.approx(9 * 1_000_000 * per_step / 3600)
+    table = confirmatory.compute(data)
+    assert "| c3-glpq-searing | 9 x 1 | 1,000,000 |" in table and "| **all** |" in table
+
+
+def write_line(folder, values, statuses=None):
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = ["run_id,status,score"] + [
+        f"run-{i:04d},{(statuses or ['ok'] * len(values))[i]},{v}" for i, v in enumerate(values)
+    ]
+    (folder / "results.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path, monkeypatch):
+    from a3c_tools import thesis_claims
+
+    monkeypatch.setattr(confirmatory, "ROOT", tmp_path)
+    base = np.linspace(0.3, 0.7, 6)
+    write_line(tmp_path / "ff", base)
+    write_line(tmp_path / "up", base + [0.20, 0.22, 0.19, 0.21, 0.20, 0.18])  # clearly better
+    write_line(tmp_path / "same", (base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])[:5])  # 5 of 6
+    plan = {
+        "study": {"alpha": 0.05},
+        "claim": [
+            {"id": "A", "expect": "better", "runs": 6, "test": {"baseline": "ff", "line": "up"}},
+            {"id": "B", "expect": "comparable", "runs": 6,
+             "test": {"baseline": "ff", "line": "same"}},
+        ],
+    }  # fmt: skip
+    assert confirmatory.outcomes(plan) is None  # one look: not before every run is in
+    write_line(tmp_path / "same", base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
+    a, b = confirmatory.outcomes(plan)
+    pa = paired.p_value(np.array([0.20, 0.22, 0.19, 0.21, 0.20, 0.18]))
+    pb = paired.margin_p_value(np.array([0.01, -0.01, 0.0, 0.02, -0.02, 0.0]))
+    assert (a.p, b.p) == pytest.approx((pa, pb))
+    assert [a.adjusted, b.adjusted] == pytest.approx(paired.holm([pa, pb]))
+    assert (a.verdict, b.verdict) == ("reproduced", "reproduced") and a.pairs == 6
+    # the wrong direction is contradicted; a failed run counts as in, its pair left out
+    plan["claim"][0]["expect"] = "worse"
+    write_line(tmp_path / "up", base + 0.2, ["ok"] * 5 + ["failed"])
+    a, _ = confirmatory.outcomes(plan)
+    assert a.verdict == "contradicted" and a.pairs == 5
+    # the claims page shows each claim's result once the look is taken
+    path = tmp_path / "plan.toml"
+    path.write_text(
+        '[study]\nalpha = 0.05\n[[claim]]\nid = "A"\nclaim = "c"\nexperiment = "e"\n'
+        'expect = "better"\neffect = 0.1\neffect_basis = "b"\nruns = 6\npower = 0.9\n'
+        'level = 0.05\ntest = { baseline = "ff", line = "same" }\n'
+    )
+    [_, _, row] = thesis_claims.confirmatory(path)
+    assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
+    write_line(tmp_path / "same", base[:3])
+    assert thesis_claims.confirmatory(path)[2].endswith("| - | **planned, not yet run** |")
+
+
+def test_a_bad_plan_is_one_line_and_exit_2(tmp_path):
+    missing = run_main(confirmatory.main, [str(tmp_path / "none.toml")])
+    assert missing.returncode == 2 and len(missing.stderr.strip().splitlines()) == 1
+    short = tmp_path / "short.toml"
+    short.write_text('[study]\nalpha = 0.05\n[[claim]]\nid = "A"\n')
+    done = run_main(confirmatory.main, [str(short), "--check"])
+    assert done.returncode == 2 and done.stderr.strip() == f"{short}: no 'spread_from'"
+    assert "Traceback" not in done.stderr
