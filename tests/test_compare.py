@@ -63,20 +63,35 @@ def test_the_margin_of_comparable_is_a_parameter():
 
 
 @pytest.mark.parametrize("confidence", [0.95, 0.975])
-def test_an_inconclusive_verdict_states_the_runs_that_would_decide_it(confidence):
-    # half-width 0.1 at 8 runs against an effect of 0.05: the fewest runs n whose
-    # t(n - 1) s / sqrt(n), with the spread s measured at 8, is below 0.05
+def test_an_inconclusive_verdict_states_the_runs_for_80_percent_power(confidence):
+    # half-width 0.1 at 8 runs against an effect of 0.05: the spread s of the differences is
+    # 0.1 sqrt(8) / t(7); the fewest runs n at which the two-sided paired t test at the
+    # verdict's level (1 - confidence) has 80% power against a mean of 0.05 (noncentral t)
     call = paired.verdict("better", 0.05, -0.05, 0.15, 8, confidence=confidence)
-    needed = int(re.fullmatch(r"inconclusive: about (\d+) runs per line would decide it", call)[1])
-    q = stats.t.ppf(0.5 + confidence / 2, np.arange(1, 400))  # df 1.. for n = 2..
-    spread = 0.1 * np.sqrt(8) / q[8 - 2]
+    level = 1 - confidence
+    found = re.fullmatch(rf"inconclusive: about (\d+) runs per line for 80% power at {level:g}",
+                         call)  # fmt: skip
+    assert found, call
+    needed = int(found[1])
+    spread = 0.1 * np.sqrt(8) / stats.t.ppf(0.5 + confidence / 2, 7)
 
-    def half(n: int) -> float:
-        return q[n - 2] * spread / np.sqrt(n)
+    def power(n: int) -> float:  # P(|T| > t(1 - level / 2, n - 1)), T: nct(n - 1, 0.05 sqrt(n) / s)
+        q = stats.t.ppf(1 - level / 2, n - 1)
+        shift = 0.05 * np.sqrt(n) / spread
+        return stats.nct.sf(q, n - 1, shift) + stats.nct.cdf(-q, n - 1, shift)
 
-    assert half(needed) < 0.05 <= half(needed - 1)
-    assert needed < 32  # fewer than the 4x of 1 / sqrt(runs) alone: t(n - 1) falls as n grows
-    assert "would not decide it" in paired.verdict("better", 0.0, -0.1, 0.1, 8)
+    assert power(needed) >= 0.8 > power(needed - 1)
+    # about twice the n at which the interval would just exclude 0 (about 50% power)
+    old = paired.runs_to_decide(0.05, 0.1, 8, confidence)
+    assert 1.6 * old <= needed <= 2.5 * old
+    # "comparable": the effect's distance from the band's edge, as for the claims page
+    near = paired.verdict("comparable", 0.02, -0.06, 0.10, 8, confidence=confidence)
+    spread = 0.08 * np.sqrt(8) / stats.t.ppf(0.5 + confidence / 2, 7)
+    assert near.endswith(f"about {paired.runs_for_power(0.03, spread, level)} runs per line "
+                         f"for 80% power at {level:g}")  # fmt: skip
+    none = paired.verdict("better", 0.0, -0.1, 0.1, 8, confidence=confidence)
+    assert none == (f"inconclusive: no number of runs per line up to {paired.MAX_POWER_RUNS} "
+                    f"gives 80% power at {level:g} at this effect")  # fmt: skip
 
 
 def test_the_interval_is_the_student_t_interval_of_the_paired_differences():
@@ -233,7 +248,7 @@ def test_the_committed_lpq_growth_comparison_gives_the_claims_pages_numbers(tmp_
     assert (effect, verdict) == (
         "+0.063 [-0.141, +0.267] (n = 15, 97.5% t); first look (n = 5, 95% t): "
         "+0.161 [-0.270, +0.592]",
-        "inconclusive: about 128 runs per line would decide it",
+        "inconclusive: about 239 runs per line for 80% power at 0.025",
     )  # as docs/claims.md shows them: the row was extended from 5 runs to 15, a second look
     out = tmp_path / "cmp"
     done = run_main(compare.main, ["--from", *COMMITTED, "--second-look", "--out", str(out)])
@@ -461,9 +476,13 @@ def test_the_tools_help_prints_single_percent_signs(tool):
 
 
 def test_the_runs_that_would_decide_a_row_stop_at_max_runs():
-    """Beyond MAX_RUNS per line the estimate is "would not decide it", never MAX_RUNS + 1."""
+    """Beyond MAX_RUNS per line the interval estimate is None, never MAX_RUNS + 1; beyond
+    MAX_POWER_RUNS the verdict says no number of runs gives 80% power, never a larger one."""
     for distance in np.geomspace(1e-3, 1.0, 400):
         needed = paired.runs_to_decide(float(distance), 0.1, 8)
         assert needed is None or 8 < needed <= paired.MAX_RUNS, (distance, needed)
-    words = paired.verdict("better", 0.0051, -0.0949, 0.1051, 8)  # needs about 401 runs
-    assert f"about {paired.MAX_RUNS + 1} runs" not in words, words
+    for effect in np.geomspace(1e-4, 0.1, 60):
+        words = paired.verdict("better", float(effect), effect - 0.1, effect + 0.1, 8)
+        found = re.search(r"about (\d+) runs", words)
+        assert found is None or int(found[1]) <= paired.MAX_POWER_RUNS, words
+        assert found is not None or "no number of runs per line up to 5000" in words, words

@@ -23,7 +23,7 @@ def test_the_committed_plan_passes_its_check():
 def test_each_claims_runs_are_the_fewest_for_80_percent_power_at_the_holm_level():
     data = plan()
     claims = data["claim"]
-    assert [c["id"] for c in claims] == [f"P{i}" for i in range(1, 10)]
+    assert [c["id"] for c in claims] == [f"P{i}" for i in range(1, 8)]
     for claim in claims:
         d = confirmatory.differences(claim["spread_from"])
         level = 0.05 / len(claims)  # Holm's first step over the family
@@ -39,6 +39,38 @@ def test_each_claims_runs_are_the_fewest_for_80_percent_power_at_the_holm_level(
             assert item.get("runs", item.get("seeds")) >= n
 
 
+def test_the_claims_left_out_state_the_runs_and_hours_80_percent_power_would_need():
+    # P8 and P9 (LPQ, GLPQ below A3C FF on Breakout) left the family before any run: at their
+    # committed spread the 10 seeds we can afford give about 1% power
+    data = plan()
+    left = data["not_testable"]
+    assert [e["id"] for e in left] == ["P8", "P9"]
+    assert not {e["id"] for e in left} & {c["id"] for c in data["claim"]}
+    assert not any(i["id"].startswith("a2") for i in data["item"])  # their Atari item is gone
+    level = 0.05 / (len(data["claim"]) + len(left))  # as if they had stayed in the family
+    for entry in left:
+        d = confirmatory.differences(entry["spread_from"])
+        spread, effect, n = d.std(ddof=1), abs(entry["effect"]), entry["runs"]
+        assert entry["level"] == pytest.approx(level, abs=1e-5)
+        assert (
+            paired.power(effect, spread, n, level)
+            >= 0.8
+            > paired.power(effect, spread, n - 1, level)
+        )
+        assert entry["power"] == pytest.approx(
+            paired.power(effect, spread, entry["max_runs"], level), abs=0.005
+        )
+        assert entry["power"] < 0.05 and n > 50 * entry["max_runs"]
+        rates = []  # CPU-seconds per step of each line, from its committed runs
+        for folder in entry["rate_from"]:
+            rows = [r for r in campaign.read_rows(ROOT / folder) if r["status"] == "ok"]
+            rates.append(np.mean([float(r["wall_time_s"]) / float(r["final_step"]) for r in rows]))
+        hours = n * entry["steps"] * entry["num_workers"] * sum(rates) / 3600
+        assert entry["cpu_hours"] == round(hours)
+    shown = confirmatory.table(data)
+    assert "| P8 | 3 |" in shown and f"| {left[1]['runs']} | 0.01 at 10 | " in shown
+
+
 def test_the_composite_claim_pairs_the_mean_of_its_lines_run_by_run():
     spec = plan()["claim"][0]["spread_from"]
     base = paired.read_scores(ROOT / spec["baseline"] / "results.csv")
@@ -51,7 +83,7 @@ def test_the_composite_claim_pairs_the_mean_of_its_lines_run_by_run():
 def test_the_check_fails_on_a_changed_number_or_a_used_seed(tmp_path):
     text = PLAN.read_text()
     changed = tmp_path / "plan.toml"
-    changed.write_text(text.replace("runs = 16\npower", "runs = 12\npower", 1))
+    changed.write_text(text.replace("runs = 15\npower", "runs = 12\npower", 1))
     done = run_main(confirmatory.main, [str(changed), "--check"])
     assert done.returncode == 1 and "P1: the plan says runs, power, level (12" in done.stdout
     changed.write_text(text.replace("seed = 7600", "seed = 1"))  # atari_figures' and sweeps'
@@ -62,6 +94,14 @@ def test_the_check_fails_on_a_changed_number_or_a_used_seed(tmp_path):
     changed.write_text(text.replace(old, old.replace("lpq_low_lr", "nowhere")))
     done = run_main(confirmatory.main, [str(changed), "--check"])
     assert done.returncode == 1 and "P4: its test reads ['results/confirmatory/catch/nowhere']" \
+        in done.stdout  # fmt: skip
+    changed.write_text(text.replace("runs = 599", "runs = 10", 1))  # P8 made to look testable
+    done = run_main(confirmatory.main, [str(changed), "--check"])
+    assert done.returncode == 1 and "P8 (not testable): the plan says runs, power, level, " \
+        "CPU-hours (10, " in done.stdout  # fmt: skip
+    changed.write_text(text.replace("runs = 8\nseed = 7500", "runs = 20\nseed = 7500", 1))
+    done = run_main(confirmatory.main, [str(changed), "--check"])
+    assert done.returncode == 1 and "item c3-glpq-searing: 20 runs per line, its claims need 8" \
         in done.stdout  # fmt: skip
 
 
@@ -84,9 +124,9 @@ def test_the_compute_table_counts_each_items_runs_at_its_committed_rate():
     item = next(i for i in data["item"] if i["id"] == "c3-glpq-searing")
     rows = [r for r in campaign.read_rows(ROOT / item["rate_from"][0]) if r["status"] == "ok"]
     per_step = np.mean([float(r["wall_time_s"]) / float(r["final_step"]) for r in rows])
-    assert confirmatory.cpu_hours(item) == pytest.approx(9 * 1_000_000 * per_step / 3600)
+    assert confirmatory.cpu_hours(item) == pytest.approx(8 * 1_000_000 * per_step / 3600)
     table = confirmatory.compute(data)
-    assert "| c3-glpq-searing | 9 x 1 | 1,000,000 |" in table and "| **all** |" in table
+    assert "| c3-glpq-searing | 8 x 1 | 1,000,000 |" in table and "| **all** |" in table
 
 
 def write_line(folder, values, statuses=None):

@@ -574,6 +574,33 @@ def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_row
             f"| {claim['id']} | " in confirm and f"{claim['runs']} ({claim['power']:.0%}" in confirm
         )
     assert confirm.count("**planned, not yet run**") == len(plan["claim"])
+    # the claims left out before any run: listed with what 80% power would need, not in the table
+    left = plan["not_testable"]
+    for entry in left:
+        assert f"| {entry['id']} | " not in confirm
+        assert (f"- {entry['id']}: " in confirm and f"would need {entry['runs']:,} runs per line"
+                in confirm and f"({entry['cpu_hours']:,} CPU-hours)" in confirm)  # fmt: skip
+    [atari] = [line for line in table if "slightly worse than the softmax layer" in line]
+    last = atari.split(" | ")[-1]
+    assert last.startswith("- (not in the confirmatory family: ") and "almost no power" in last
+    primaries = {c.get("primary") for c in data["conclusion"]}
+    assert not any(e["id"] in str(p) for e in left for p in primaries)
+
+
+def test_the_precision_paragraph_says_what_auto_does_now_and_what_the_runs_ran(monkeypatch):
+    # the committed bf16-learn runs are a fact of those runs; auto itself is float32 at K = 1
+    # on every CPU (a3c_runtime.flags.resolve_precision), bf16 at K > 1 only where native
+    from a3c_runtime import flags
+
+    for native in (True, False):
+        monkeypatch.setattr(flags, "native_bf16", lambda native=native: native)
+        assert flags.resolve_precision("auto", 1) == "fp32"
+        assert flags.resolve_precision("auto", 16) == ("bf16" if native else "fp32")
+    page = " ".join((ROOT / "docs" / "claims.md").read_text().split())
+    precision = page.split("**Precision.**")[1].split("**Multiplicity.**")[0]
+    assert "auto is float32 at 1 worker x 1 env on every CPU" in precision
+    assert "where auto then chose `bf16-learn`" in precision
+    assert not re.search(r"auto`?,? which [^.]*\bis `?bf16-learn", page)
 
 
 def test_a_conclusions_verdict_combines_its_rows():

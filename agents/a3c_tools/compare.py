@@ -36,7 +36,11 @@ The result: the effect, the mean over the paired runs of (other - base), with it
 interval on the paired differences, and the verdict on the question --expect asks (is other
 better than base, the default; worse; or comparable, within +-MARGIN) in the claims page's
 terms: one implementation, a3c_tools.paired (its docstring gives the method and why), computes
-both, so the same two results give the same numbers here and on docs/claims.md. With fewer than
+both, so the same two results give the same numbers here and on docs/claims.md. An inconclusive
+result gives the runs per line at which its test would have 80% power, were the true effect and
+the spread of the paired differences as measured, at the level the verdict is judged at (0.05;
+0.025 with --second-look): a3c_tools.paired.runs_for_power. (The n at which the interval would
+just exclude 0 were nothing to change is only about 50% power, half as many.) With fewer than
 3 paired runs there is no interval and no verdict (the t interval of 2 is +-12.7 standard
 errors); when every run of both lines is at random play (Catch about 0.2, an Atari game's random
 score), the result says so and gives no verdict, since neither line learned. A run that failed
@@ -345,8 +349,8 @@ def run_lines(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
 # The result
 # ------------------------------------------------------------------------------------------------
 def answer(call: str, effect: float, expect: str, margin: float) -> str:
-    """The verdict in plain words: better, worse, comparable, or inconclusive with the runs that
-    would decide it, and the claims page's verdict on the question asked."""
+    """The verdict in plain words: better, worse, comparable, or inconclusive with the runs per
+    line for 80% power, and the claims page's verdict on the question asked."""
     question = QUESTIONS.get(expect, f"other within +-{margin:g} of base")
     head = call.partition(":")[0]
     if head in ("inconclusive", "no verdict"):

@@ -19,6 +19,12 @@ is new when no committed results.csv under results/ has it in its `seed` column.
 The analysis is fixed here too (`outcomes`): one look, once every claim's `test` runs are in,
 the same paired t test as the claims page's, Holm over the family, a verdict where the adjusted
 p is below alpha; the claims page shows it (until then, "planned, not yet run").
+
+A `[[not_testable]]` entry is a claim left out of the family because no affordable number of
+runs gives it power: the plan states, and `--check` holds, the runs per line its test would
+need for the plan's power at the level it would have had in the family (alpha / (claims +
+not testable), uncapped up to a3c_tools.paired.MAX_POWER_RUNS), the power at its `max_runs`,
+and the CPU-hours those runs would take (`steps`, `num_workers` and `rate_from` as an item's).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import numpy as np
 from a3c_tools import ROOT, run_main
 from a3c_tools.paired import (
     MARGIN,
+    MAX_POWER_RUNS,
     holm,
     interval,
     margin_p_value,
@@ -180,6 +187,35 @@ def plan_claim(claim: dict, size: int, study: dict) -> Planned:
     return Planned(claim["id"], int(d.size), spread, level, runs, power(gap, spread, runs, level))
 
 
+@dataclass(frozen=True)
+class Untestable:
+    """A claim outside the family: the runs per line it would need for the plan's power at the
+    level it would have had in the family, the power at its cap, and those runs' CPU-hours."""
+
+    id: str
+    pairs: int
+    spread: float
+    level: float
+    runs: int | None  # None: more than MAX_POWER_RUNS
+    power: float  # at max_runs
+    cpu_hours: float | None
+
+
+def plan_untestable(entry: dict, plan: dict) -> Untestable:
+    """What a `[[not_testable]]` entry's test would need, had it stayed in the family."""
+    d = differences(entry["spread_from"])
+    if d.size < 3:
+        raise ValueError(f"{entry['id']}: {d.size} committed pairs, fewer than 3 give no spread")
+    study = plan["study"]
+    spread = float(d.std(ddof=1))
+    level = study["alpha"] / (len(plan["claim"]) + len(plan.get("not_testable", [])))
+    effect = abs(float(entry["effect"]))
+    runs = runs_for_power(effect, spread, level, study["power"])
+    cap = power(effect, spread, int(entry["max_runs"]), level)
+    hours = None if runs is None else cpu_hours({**entry, "runs": runs})
+    return Untestable(entry["id"], int(d.size), spread, level, runs, cap, hours)
+
+
 def committed_seeds(root: Path = ROOT / "results") -> set[int]:
     """Every run seed in a committed results.csv under `root` (its `seed` column)."""
     seeds: set[int] = set()
@@ -203,7 +239,9 @@ def plan_seeds(plan: dict) -> set[int]:
 
 def problems(plan: dict, plan_path: Path) -> list[str]:
     """What in the plan disagrees with the committed runs: a claim's runs, power or level
-    other than computed, a line with fewer runs than its claims need, or a seed already used."""
+    other than computed, an item with fewer runs than its claims need or more than any needs
+    (or named by none), a not-testable entry's numbers other than computed, or a seed already
+    used."""
     out = []
     claims, study = plan["claim"], plan["study"]
     for claim in claims:
@@ -234,6 +272,25 @@ def problems(plan: dict, plan_path: Path) -> list[str]:
                 out.append(f"{claim['id']}: no item {item_id} in {plan_path}")
             elif int(item.get("runs", item.get("seeds", 0))) < claim["runs"]:
                 out.append(f"{claim['id']}: item {item_id} has fewer runs than {claim['runs']}")
+    for item in plan.get("item", []):  # no run that no claim's test reads
+        wanted = [c["runs"] for c in claims if item["id"] in c["items"]]
+        runs = int(item.get("runs", item.get("seeds", 0)))
+        if not wanted:
+            out.append(f"item {item['id']}: no primary claim names it")
+        elif runs > max(wanted):
+            out.append(f"item {item['id']}: {runs} runs per line, its claims need {max(wanted)}")
+    ids = {claim["id"] for claim in claims}
+    for entry in plan.get("not_testable", []):
+        if entry["id"] in ids:
+            out.append(f"{entry['id']}: both a primary claim and not testable")
+        done = plan_untestable(entry, plan)
+        hours = None if done.cpu_hours is None else round(done.cpu_hours)
+        stated = (entry.get("runs"), round(entry["power"], 2), round(entry["level"], 5),
+                  entry.get("cpu_hours"))  # fmt: skip
+        if stated != (done.runs, round(done.power, 2), round(done.level, 5), hours):
+            computed = f"{done.runs}, {done.power:.2f}, {done.level:.5f}, {hours}"
+            out.append(f"{entry['id']} (not testable): the plan says runs, power, level, "
+                       f"CPU-hours {stated}, the committed runs give {computed}")  # fmt: skip
     used = sorted(plan_seeds(plan) & committed_seeds())
     if used:
         out.append(f"run seeds already used by committed runs: {used[:10]}")
@@ -283,6 +340,18 @@ def table(plan: dict) -> str:
         done = plan_claim(claim, len(claims), study)
         lines.append(f"| {done.id} | {done.pairs} | {done.spread:.4g} | {done.level:.5f} | "
                      f"{done.runs} | {done.power:.2f} |")  # fmt: skip
+    left = plan.get("not_testable", [])
+    if left:
+        lines += ["", "| not testable | committed pairs | spread | level had it stayed | runs per "
+                  f"line for {study['power']:.0%} power | power at its cap | their CPU-hours |",
+                  "|---|---|---|---|---|---|---|"]  # fmt: skip
+        for entry in left:
+            done = plan_untestable(entry, plan)
+            runs = f"> {MAX_POWER_RUNS}" if done.runs is None else f"{done.runs}"
+            hours = "-" if done.cpu_hours is None else f"{done.cpu_hours:,.0f}"
+            cap = f"{done.power:.2f} at {entry['max_runs']}"
+            lines.append(f"| {done.id} | {done.pairs} | {done.spread:.4g} | {done.level:.5f} | "
+                         f"{runs} | {cap} | {hours} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

@@ -26,11 +26,13 @@ Verdicts, from the interval and the expected direction:
   above the game's random score, RANDOM_SCORES): neither line learned, so the comparison says
   nothing about learning, whatever the interval.
 
-An inconclusive verdict states the runs per line that would decide it if the effect and the
-spread stayed as measured: the smallest n whose t(n - 1) sd / sqrt(n) puts the interval off 0
-(or the margin), about 50% power. `runs_for_power` gives the runs for a stated power instead
-(the noncentral t), `p_value` / `margin_p_value` the p-value of the test an interval inverts,
-and `holm` the adjustment of a family of them (the claims page uses these three).
+An inconclusive verdict states the runs per line at which its test would have 80% power
+(POWER) if the effect and the spread of the paired differences were as measured, at the level
+the verdict is judged at (1 - confidence: 0.05 at 95%, 0.025 at a second look's 97.5%):
+`runs_for_power`, from the noncentral t. (`runs_to_decide`, the smallest n whose t(n - 1) sd /
+sqrt(n) would just put the interval off 0, is only about 50% power: the campaign's extensions
+were sized by it.) `p_value` / `margin_p_value` give the p-value of the test an interval
+inverts, and `holm` the adjustment of a family of them (the claims page uses these three).
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ MAX_RUNS = 400  # beyond this many runs per line, more runs at the budget would 
 CONFIDENCE = 0.95
 SECOND_LOOK = 0.975  # a second look at lines extended after an inconclusive first one
 MIN_PAIRS = 3  # fewer pairs: no interval, no verdict
+POWER = 0.8  # the power an inconclusive verdict's "runs per line" is computed for
 CATCH = "Catch-v0"
 RANDOM_SCORES = {CATCH: 0.2}  # a uniformly random policy's score; Atari games: atari_report.toml
 RANDOM_SLACK = {CATCH: 0.1}  # a run within this of random play has not learned (Atari: 5% of
@@ -114,7 +117,9 @@ def runs_to_decide(
     distance: float, half_width: float, runs: int, confidence: float = CONFIDENCE
 ) -> int | None:
     """The fewest runs per line (more than `runs`) whose interval's half-width, t(n - 1) s /
-    sqrt(n) with the spread s measured at `runs`, is below `distance`; None beyond MAX_RUNS."""
+    sqrt(n) with the spread s measured at `runs`, is below `distance`; None beyond MAX_RUNS.
+    About 50% power (the estimate would fall on either side of the edge): the campaign's rule
+    sized its extensions by it (results/campaign/plan.toml); `verdict` states `runs_for_power`."""
     if distance <= 0 or runs < 2:
         return None
     spread = half_width * math.sqrt(runs) / t_quantile(runs, confidence)
@@ -134,8 +139,9 @@ def verdict(
     margin: float = MARGIN,
     confidence: float = CONFIDENCE,
 ) -> str:
-    """The verdict of an interval, and for an inconclusive one the runs that would decide it;
-    no verdict below MIN_PAIRS pairs."""
+    """The verdict of an interval, and for an inconclusive one the runs per line for POWER at
+    the interval's level (1 - confidence) if the effect and the spread stayed as measured (the
+    spread read back from the interval's half-width); no verdict below MIN_PAIRS pairs."""
     if runs < MIN_PAIRS:
         return f"no verdict: {runs} paired runs, fewer than {MIN_PAIRS} give no useful interval"
     if expect in ("better", "worse"):
@@ -152,10 +158,13 @@ def verdict(
         if low > margin or high < -margin:
             return "contradicted"
         distance = abs(abs(effect) - margin)  # how far the centre is from the margin
-    needed = runs_to_decide(distance, (high - low) / 2, runs, confidence)
+    spread = (high - low) / 2 * math.sqrt(runs) / t_quantile(runs, confidence)
+    level = round(1 - confidence, 10)
+    needed = runs_for_power(distance, spread, level, POWER)
     if needed is None:
-        return f"inconclusive: more runs at this budget would not decide it (> {MAX_RUNS} per line)"
-    return f"inconclusive: about {needed} runs per line would decide it"
+        return (f"inconclusive: no number of runs per line up to {MAX_POWER_RUNS} gives "
+                f"{POWER:.0%} power at {level:g} at this effect")  # fmt: skip
+    return f"inconclusive: about {needed} runs per line for {POWER:.0%} power at {level:g}"
 
 
 def p_value(differences: np.ndarray, null: float = 0.0) -> float:

@@ -71,6 +71,7 @@ from a3c_tools import run_main
 from a3c_tools.atari_figures import EVAL_EPISODES, SEED
 from a3c_tools.paired import (
     MARGIN,
+    MAX_POWER_RUNS,
     SECOND_LOOK,
     Paired,
     holm,
@@ -564,7 +565,8 @@ def conclusions(claims: dict, judged: list[Judged]) -> list[str]:
 
 def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
     """The confirmatory section's table, from the pre-registered plan: each primary claim, its
-    experiment, the effect it must detect, its runs per line and power, and its status."""
+    experiment, the effect it must detect, its runs per line and power, and its status; then
+    the claims the plan left out as not testable, with the runs and CPU-hours they would need."""
     if not plan_path.is_file():
         return []
     from a3c_tools.confirmatory import outcomes
@@ -587,6 +589,19 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
                  f"{claim['runs']} ({claim['power']:.0%} at {claim['level']:.4f})",
                  result, verdict]  # fmt: skip
         out.append("| " + " | ".join(" ".join(str(c).split()) for c in cells) + " |")
+    left = plan.get("not_testable", [])
+    if left:  # left out of the family before any run: what a test of them would need
+        out += ["", "**Not testable at our budget**, so outside the family and never tested by "
+                "the study ([PLAN.md](../results/confirmatory/PLAN.md) says why):", ""]  # fmt: skip
+        for entry in left:
+            need = (f"more than {MAX_POWER_RUNS}" if entry.get("runs") is None
+                    else f"{entry['runs']:,}")  # fmt: skip
+            out.append(
+                f"- {entry['id']}: {' '.join(entry['claim'].split())} {POWER:.0%} power at "
+                f"{abs(entry['effect']):g} ({entry['effect_basis']}) would need {need} runs per "
+                f"line at the committed spread ({entry.get('cpu_hours', 0):,} CPU-hours); the "
+                f"{entry['max_runs']} we can afford give {entry['power']:.0%}."
+            )
     return out
 
 
