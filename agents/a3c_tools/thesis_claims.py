@@ -592,7 +592,7 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
     left = plan.get("not_testable", [])
     if left:  # left out of the family before any run: what a test of them would need
         out += ["", "**Not testable at our budget**, so outside the family and never tested by "
-                "the study ([PLAN.md](../results/confirmatory/PLAN.md) says why):", ""]  # fmt: skip
+                "the study (`results/confirmatory/PLAN.md` says why):", ""]  # fmt: skip
         for entry in left:
             need = (f"more than {MAX_POWER_RUNS}" if entry.get("runs") is None
                     else f"{entry['runs']:,}")  # fmt: skip
