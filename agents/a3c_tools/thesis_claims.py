@@ -600,7 +600,7 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
                 f"- {entry['id']}: {' '.join(entry['claim'].split())} {POWER:.0%} power at "
                 f"{abs(entry['effect']):g} ({entry['effect_basis']}) would need {need} runs per "
                 f"line at the committed spread ({entry.get('cpu_hours', 0):,} CPU-hours); the "
-                f"{entry['max_runs']} we can afford give {entry['power']:.0%}."
+                f"{entry['max_runs']} runs a line we can afford give {entry['power']:.0%}."
             )
     return out
 
