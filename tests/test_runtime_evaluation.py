@@ -1,11 +1,11 @@
 """a3c_runtime.evaluation: the evaluator process and --evaluate."""
 
 import pickle
-from types import SimpleNamespace
 
 import a3c_runtime as runtime
 import pytest
 import torch
+from a3c_runtime.resume import given_flags
 from conftest import FORK, SCRIPTS, load_script, main_exit, shared_for, tiny_args
 
 import catch_env  # noqa: F401  (registers Catch-v0)
@@ -57,19 +57,21 @@ def dataclass_replace(args, seed: int):
     return dataclasses.replace(args, seed=seed)
 
 
-def test_evaluate_plays_a_handful_of_episodes_when_rendering():
-    args = SimpleNamespace(eval_episodes=None, render="human")
-    assert (
-        runtime.evaluation.evaluation_episodes(args) == runtime.evaluation.HUMAN_EVAL_EPISODES == 5
-    )
-    assert (
-        runtime.evaluation.evaluation_episodes(SimpleNamespace(eval_episodes=None, render="none"))
-        == 50
-    )
-    assert (
-        runtime.evaluation.evaluation_episodes(SimpleNamespace(eval_episodes=3, render="human"))
-        == 3
-    )
+def test_evaluate_plays_the_runs_protocol_or_a_handful_of_episodes_when_rendering():
+    module = load_script("a3c_ff")
+    trained = tiny_args(module, eval_episodes=7, seed=3, eval_greedy=True)
+    protocol = runtime.evaluation.evaluation_protocol
+
+    def command(*flags: str, **values):
+        return module.Args(**values), given_flags(list(flags), module.Args)
+
+    run = protocol(trained, *command())
+    assert (run.eval_episodes, run.seed, run.eval_greedy) == (7, 3, True)  # the run's own
+    watched = protocol(trained, *command("--render", "human", render="human"))
+    assert watched.eval_episodes == runtime.evaluation.HUMAN_EVAL_EPISODES == 5
+    given = protocol(trained, *command("--eval-episodes", "4", "--seed", "1", "--no-eval-greedy",
+                                       eval_episodes=4, seed=1, eval_greedy=False))  # fmt: skip
+    assert (given.eval_episodes, given.seed, given.eval_greedy) == (4, 1, False)
 
 
 class ActionCountingEnv:

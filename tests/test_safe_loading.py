@@ -203,17 +203,17 @@ def test_an_old_checkpoint_is_refused_naming_the_command_that_converts_it(
     result = run_main(convert_checkpoint.main, [str(path)])
     assert result.returncode == 0 and result.stdout.startswith(f"converted {path}"), result.stderr
     assert zipfile.ZipFile(path).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
-    assert not list(tmp_path.glob("*.tmp"))
+    assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob("*.a3c-partial"))
+    assert read_checkpoint(path)["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
     checkpoint = runtime.load_checkpoint(str(path), load_script("a3c_ff").AGENT)
-    assert checkpoint["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
     for key, value in read_checkpoint(good)["model"].items():
-        assert torch.equal(checkpoint["model"][key], value), key
+        assert torch.equal(checkpoint.model[key], value), key
     # the worker's state, converted, goes on as the pickled one would have
     rng, envs, obs = parts
     fresh_envs = make_vector_env("Catch-v0", 2)
     fresh_envs.reset(seed=0)
     fresh = (np.random.default_rng(0), fresh_envs, np.zeros_like(obs))
-    rng2, envs2, obs2 = restored_state(checkpoint["workers"][0], fresh)
+    rng2, envs2, obs2 = restored_state(checkpoint.workers[0], fresh)
     assert np.array_equal(obs2, obs) and rng2.random() == rng.random()
     for t in range(30):
         actions = np.array([t % 3, (t * 7) % 3])

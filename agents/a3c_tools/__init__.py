@@ -45,6 +45,13 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository: the tools work on 
 AGENTS = ROOT / "agents"
 
 
+def agent_scripts() -> set[str]:
+    """The agent scripts of this clone, as their checkpoints name them (relative to agents/):
+    agents/a3c_*.py and agents/future_work/a3c_*.py."""
+    found = [*AGENTS.glob("a3c_*.py"), *(AGENTS / "future_work").glob("a3c_*.py")]
+    return {path.relative_to(AGENTS).as_posix() for path in found}
+
+
 def load_script(path: Path | str) -> ModuleType:
     """Import an agent script (agents/a3c_*.py, agents/future_work/a3c_*.py) as a module named
     after its file, once per process: the scripts are run by path, not installed."""

@@ -55,6 +55,8 @@ def convert(path: str, out: str) -> str:
         UNSAFE_FORMATS,
         WriteFailed,
         check_checkpoint_path,
+        checked,
+        open_checkpoint,
         read_checkpoint,
         seal,
         verify_checkpoint,
@@ -72,6 +74,7 @@ def convert(path: str, out: str) -> str:
         except UsageError:
             pass  # an older format, or unsafe: converted below
         else:
+            open_checkpoint(path)  # the gate: one that is malformed is refused all the same
             return f"{path} is in the safe form already: nothing to do"
     try:  # the checkpoint itself is data in every format; only v1's worker states are pickles
         checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
@@ -85,14 +88,18 @@ def convert(path: str, out: str) -> str:
     except Exception as e:
         detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
         raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
-    if not isinstance(checkpoint, dict) or "global_step" not in checkpoint:
+    if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("global_step"), int):
         raise UsageError(f"{path!r} is not a checkpoint written by the agent scripts")
     old_format = checkpoint.get("format")
+    try:
+        safe = converted(checkpoint)
+    except (AttributeError, TypeError, ValueError) as e:
+        raise UsageError(f"checkpoint {path!r} is malformed: {e}") from None
     buffer = io.BytesIO()
-    torch.save(converted(checkpoint), buffer)
+    torch.save(safe, buffer)
     sealed = seal(buffer.getvalue())
-    try:  # what is written must load safely
-        torch.load(io.BytesIO(sealed), map_location="cpu", weights_only=True)
+    try:  # what is written must load safely, and pass the gate
+        checked(torch.load(io.BytesIO(sealed), map_location="cpu", weights_only=True), path)
     except pickle.UnpicklingError as e:
         detail = (str(e).strip().splitlines() or [""])[0]
         raise UsageError(f"checkpoint {path!r} holds what has no safe form: {detail}") from None
