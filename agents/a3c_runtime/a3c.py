@@ -359,7 +359,7 @@ def resume_hint(agent: Any, run_dir: Path) -> str:
     named = os.path.basename(sys.argv[0]) == os.path.basename(agent.script)
     script = sys.argv[0] if named else os.path.join("agents", agent.script)
     path = run_dir / "checkpoint.pt"
-    step = checkpoint_step(path) if path.exists() else None
+    step = checkpoint_step(path, agent) if path.exists() else None
     relative = os.path.relpath(path)
     shown = str(path) if relative.startswith("..") else relative
     if step is None:

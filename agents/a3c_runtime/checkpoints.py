@@ -214,10 +214,12 @@ def write_atomically(path: Path, data: bytes | memoryview) -> None:
         raise WriteFailed(path, e) from e
 
 
-def checkpoint_step(path: Path) -> int | None:
-    """The global step of a checkpoint that passes the gate (open_checkpoint), else None."""
+def checkpoint_step(path: Path, agent: Any = None) -> int | None:
+    """The global step of a checkpoint that passes the gate (open_checkpoint; load_checkpoint
+    as agent's, given one), else None."""
     try:
-        return open_checkpoint(str(path)).global_step
+        checkpoint = open_checkpoint(str(path))
+        return (checkpoint if agent is None else for_agent(checkpoint, agent)).global_step
     except UsageError:
         return None
 
@@ -439,9 +441,10 @@ def for_agent(checkpoint: Checkpoint, agent: Any) -> Checkpoint:
     hints = typing.get_type_hints(agent.Args)
     for name, value in trained.items():
         if name in hints and not of_type(value, hints[name]):
+            kind = getattr(hints[name], "__name__", str(hints[name]))
             raise UsageError(
                 f"checkpoint {path!r} is malformed: its --{name.replace('_', '-')} {value!r} is "
-                f"not a {hints[name]}"
+                f"not {kind}"
             )
     known = {f.name for f in fields(agent.Args)}
     try:

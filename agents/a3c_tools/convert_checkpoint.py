@@ -23,8 +23,9 @@ import io
 import pickle
 import sys
 from pathlib import Path
+from typing import Any
 
-from a3c_tools import run_main
+from a3c_tools import AGENTS, agent_scripts, load_script, run_main
 
 
 def converted(checkpoint: dict) -> dict:
@@ -43,6 +44,15 @@ def converted(checkpoint: dict) -> dict:
     return {**checkpoint, "format": CHECKPOINT_FORMAT, "script": checkpoint.get("script", ""),
             "workers": workers,
             "pending_evaluations": list(checkpoint.get("pending_evaluations", []))}  # fmt: skip
+
+
+def checked_by_its_script(checkpoint: Any) -> None:
+    """The gate's checks of a checkpoint's flags by the script that wrote it, where that script
+    is one of this clone's (a3c_runtime.checkpoints.for_agent); UsageError if they fail."""
+    from a3c_runtime.checkpoints import for_agent
+
+    if checkpoint.script in agent_scripts():
+        for_agent(checkpoint, load_script(AGENTS / checkpoint.script).AGENT)
 
 
 def convert(path: str, out: str) -> str:
@@ -74,7 +84,7 @@ def convert(path: str, out: str) -> str:
         except UsageError:
             pass  # an older format, or unsafe: converted below
         else:
-            open_checkpoint(path)  # the gate: one that is malformed is refused all the same
+            checked_by_its_script(open_checkpoint(path))  # a malformed one is refused all the same
             return f"{path} is in the safe form already: nothing to do"
     try:  # the checkpoint itself is data in every format; only v1's worker states are pickles
         checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
@@ -99,7 +109,8 @@ def convert(path: str, out: str) -> str:
     torch.save(safe, buffer)
     sealed = seal(buffer.getvalue())
     try:  # what is written must load safely, and pass the gate
-        checked(torch.load(io.BytesIO(sealed), map_location="cpu", weights_only=True), path)
+        safe = torch.load(io.BytesIO(sealed), map_location="cpu", weights_only=True)
+        checked_by_its_script(checked(safe, path))
     except pickle.UnpicklingError as e:
         detail = (str(e).strip().splitlines() or [""])[0]
         raise UsageError(f"checkpoint {path!r} holds what has no safe form: {detail}") from None
