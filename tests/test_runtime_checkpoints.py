@@ -312,6 +312,25 @@ def test_the_closing_hint_does_not_offer_a_changed_checkpoint(ff_checkpoints, tm
     assert "(step 0) survives; resume: " in resume_hint(agent, tmp_path / "good")
 
 
+def test_the_closing_hint_of_a_run_whose_folder_was_removed_says_so(ff_checkpoints, tmp_path):
+    """The folder deleted mid-run took the checkpoints written there: the line says the folder
+    was removed, not that no checkpoint was written."""
+    from a3c_runtime.a3c import resume_hint
+
+    new, _ = ff_checkpoints
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "checkpoint.pt").write_bytes(new.read_bytes())  # written during the run
+    agent = load_script("a3c_ff").AGENT
+    assert "survives" in resume_hint(agent, run_dir)
+    (run_dir / "checkpoint.pt").unlink()
+    run_dir.rmdir()  # the user removes the folder
+    hint = resume_hint(agent, run_dir)
+    assert "no checkpoint was written" not in hint, hint
+    assert f"the run folder {run_dir} was removed during the run, with the checkpoints" in hint
+    assert "start the run again: python " in hint
+
+
 @pytest.mark.parametrize("mode", ["--resume", "--evaluate"])
 def test_a_folder_for_a_checkpoint_names_the_checkpoint_in_it(
     mode, ff_checkpoints, tmp_path, monkeypatch, capsys

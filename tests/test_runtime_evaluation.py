@@ -3,10 +3,20 @@
 import pickle
 
 import a3c_runtime as runtime
+import numpy as np
 import pytest
 import torch
 from a3c_runtime.resume import given_flags
-from conftest import FORK, SCRIPTS, load_script, main_exit, shared_for, tiny_args
+from conftest import (
+    FORK,
+    SCRIPTS,
+    load_script,
+    main_exit,
+    read_evaluations,
+    run_script,
+    shared_for,
+    tiny_args,
+)
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -174,3 +184,25 @@ def test_the_evaluator_records_videos_only_with_capture_video(tmp_path, monkeypa
             module.AGENT, shared_for(module, args), args, None, str(tmp_path), None
         )
     assert asked == [str(tmp_path / "videos") if capture else None]
+
+
+def test_evaluate_of_a_runs_final_checkpoint_gives_its_final_evaluation(
+    tmp_path, monkeypatch, capsys
+):
+    """The same episodes (their seeds), the same action samples and the same episode count as
+    the run's own final evaluation: the same scores."""
+    run_dir = tmp_path / "run"
+    flags = ["--num-workers", "1", "--total-timesteps", "400", "--eval-interval", "200",
+             "--eval-episodes", "8", "--seed", "3", "--run-dir", str(run_dir)]  # fmt: skip
+    result = run_script("a3c_ff", *flags)
+    assert result.returncode == 0, result.stderr
+    final = read_evaluations(run_dir)[-1]
+    assert int(final["global_step"]) >= 400 and final["episodes"] == "8"
+    argv = ["--evaluate", str(run_dir / "checkpoint.pt")]
+    code, _ = main_exit(load_script("a3c_ff"), argv, monkeypatch, capsys, keep_out=True)
+    out = capsys.readouterr().out
+    assert code == 0, out
+    scores = [float(line.split()[-1]) for line in out.splitlines() if line.startswith("episode")]
+    assert len(scores) == 8 and f"step {int(final['global_step']):,}: mean score" in out, out
+    assert np.mean(scores) == float(final["mean_return"])
+    assert np.std(scores) == float(final["std_return"])
