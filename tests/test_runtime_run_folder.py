@@ -181,18 +181,16 @@ def test_a_resume_never_mixes_its_run_into_another_runs_folder(tmp_path, monkeyp
 
 
 def test_a_run_removes_only_the_temp_files_it_made(tmp_path):
-    """A killed run's half-written files go when its folder is taken again; a user's *.tmp
-    file, or any other, stays."""
-    from a3c_runtime.checkpoints import partial_path
-
+    """A killed run's half-written files (write_atomically's, named for it) go when its folder
+    is taken again; a user's *.tmp file, or any other, stays."""
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    own = [partial_path(run_dir / "checkpoint.pt"), partial_path(run_dir / "evaluations.csv")]
+    own = [run_dir / "checkpoint.pt.a3c-partial", run_dir / "evaluations.csv.a3c-partial"]
     users = [run_dir / "notes.tmp", run_dir / "checkpoint.pt.tmp", run_dir / "x.a3c-partial"]
-    for path in own + users:
-        path.write_text("half\n")
     for new_run in (True, False):  # a new run's folder, a resumed one's
-        RunFolder(run_dir, new_run=new_run).close()
-        assert sorted(p.name for p in run_dir.iterdir()) == sorted(p.name for p in users)
-        for path in own:
+        for path in own + users:
             path.write_text("half\n")
+        RunFolder(run_dir, new_run=new_run).close()
+        assert all(path.read_text() == "half\n" for path in users)
+        assert sorted(p.name for p in run_dir.iterdir()) == sorted(p.name for p in users)
+    assert runtime.checkpoints.partial_path(run_dir / "checkpoint.pt") == own[0]
