@@ -76,16 +76,18 @@ def play_episodes(
 
 
 def make_eval_envs(
-    agent: Any, args: Any, video_dir: str | None, prefix: str = "rl-video"
+    agent: Any, args: Any, video_dir: str | None, prefix: str = "rl-video", every: bool = False
 ) -> list[gym.Env]:
-    """--eval-episodes envs; with a video_dir the first records every episode it plays."""
+    """--eval-episodes envs; with a video_dir the first records every episode it plays (every:
+    each env records its own, as `prefix-<n>`; drawing the screen changes no episode)."""
     envs = []
     for i in range(args.eval_episodes):
-        if video_dir and i == 0:
+        if video_dir and (i == 0 or every):
             env = agent.make_env(args.env, render_mode="rgb_array")
             env = gym.wrappers.RecordVideo(
-                env, video_dir, episode_trigger=lambda _: True, name_prefix=prefix
-            )
+                env, video_dir, episode_trigger=lambda _: True,
+                name_prefix=f"{prefix}-{i + 1}" if every else prefix,
+            )  # fmt: skip
         else:
             env = agent.make_env(args.env)
         envs.append(env)
@@ -224,7 +226,7 @@ def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray
         if args.render == "human":
             scores = watched_episodes(agent, model, checkpoint, protocol)
         else:
-            envs = make_eval_envs(agent, protocol, video_dir, prefix="evaluate")
+            envs = make_eval_envs(agent, protocol, video_dir, "episode", every=True)
             try:
                 result = evaluate_network(model, envs, checkpoint.global_step, protocol)
             finally:
