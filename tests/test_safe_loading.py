@@ -283,6 +283,11 @@ DEFECTS = {  # a sealed checkpoint changed as a careless or hostile writer would
                                       "asks for --eval-episodes 1000000"),
     "no workers": (lambda c, evil: c["args"].update(num_workers=0),
                    "asks for --num-workers 0 (valid"),
+    "a pending evaluation of another network": (
+        lambda c, evil: c["pending_evaluations"].append((2000, {"w": torch.zeros(2)})),
+        "its 'pending_evaluations' are not (step, its network) pairs"),
+    "a worker by name": (lambda c, evil: c["workers"].update({"w": []}),
+                         "its 'workers' are not each worker's state by its number"),
 }  # fmt: skip
 
 

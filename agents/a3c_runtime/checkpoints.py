@@ -318,8 +318,8 @@ def checked(raw: dict, path: str) -> Checkpoint:
         path=path, script=raw["script"], env=env, args=raw["args"],
         global_step=raw["global_step"], wall_time=float(raw["wall_time"]),
         optimizer_name=raw["optimizer_name"], model=raw["model"], optimizer=raw["optimizer"],
-        workers={int(k): v for k, v in raw["workers"].items()},
-        pending_evaluations=[(int(step), theta) for step, theta in raw["pending_evaluations"]],
+        workers=raw["workers"],
+        pending_evaluations=[(step, theta) for step, theta in raw["pending_evaluations"]],
         run_folder=Path(path).resolve().parent,
     )  # fmt: skip
 
@@ -342,13 +342,16 @@ def malformed(raw: dict) -> str | None:
         isinstance(k, str) and torch.is_tensor(v) for k, v in raw["model"].items()
     ):
         return "its 'model' is not a network's tensors by name"
-    if not all(isinstance(states, (list, tuple)) for states in raw["workers"].values()):
-        return "its 'workers' are not each worker's state"
+    if not all(isinstance(worker_id, int) and isinstance(states, (list, tuple))
+               for worker_id, states in raw["workers"].items()):  # fmt: skip
+        return "its 'workers' are not each worker's state by its number"
+    shapes = {name: tensor.shape for name, tensor in raw["model"].items()}
     for request in raw["pending_evaluations"]:
         if not (isinstance(request, (list, tuple)) and len(request) == 2
                 and isinstance(request[0], int) and isinstance(request[1], dict)
-                and all(torch.is_tensor(v) for v in request[1].values())):  # fmt: skip
-            return "its 'pending_evaluations' are not (step, network) pairs"
+                and all(torch.is_tensor(v) for v in request[1].values())
+                and {k: v.shape for k, v in request[1].items()} == shapes):  # fmt: skip
+            return "its 'pending_evaluations' are not (step, its network) pairs"
     complex_part = next((key for key in raw if any_complex(raw[key])), None)
     if complex_part is not None:  # loaded into a real network, its imaginary part would be lost
         return f"its {complex_part!r} holds a complex-valued tensor"

@@ -219,9 +219,7 @@ def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray
     num_actions = probe_env(agent.make_env, checkpoint.env)
     model = agent.build_network(num_actions, trained)  # as the run's evaluator builds it
     load_network(model, checkpoint)
-    video_dir = None
-    if args.capture_video:
-        video_dir = os.path.join(os.path.dirname(args.evaluate), "videos-evaluate")
+    video_dir = str(checkpoint.run_folder / "videos-evaluate") if args.capture_video else None
     try:
         if args.render == "human":
             scores = watched_episodes(agent, model, checkpoint, protocol)
