@@ -221,7 +221,7 @@ def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray
     load_network(model, checkpoint)
     video_dir = str(checkpoint.run_folder / "videos-evaluate") if args.capture_video else None
     try:
-        if args.render == "human":
+        if args.render == "human" and not args.capture_video:  # (a video draws no window)
             scores = watched_episodes(agent, model, checkpoint, protocol)
         else:
             envs = make_eval_envs(agent, protocol, video_dir, "episode", every=True)
