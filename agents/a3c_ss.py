@@ -139,9 +139,7 @@ class Args:
     # Evaluation, logging, checkpoints
     eval_interval: Annotated[int | None, default_text("50,000 for Catch, 1,000,000 for ALE")] = None
     """global steps between evaluations"""
-    eval_episodes: Annotated[int | None, default_text("50; 5 with --evaluate --render human")] = (
-        None
-    )
+    eval_episodes: Annotated[int | None, default_text("50; --evaluate: the run's")] = None
     """episodes per evaluation, sampling actions from pi"""
     eval_greedy: bool = False
     """evaluations (and --evaluate) play argmax pi instead of sampling from pi (the thesis
@@ -166,7 +164,8 @@ class Args:
     capture_video: bool = False
     """record evaluation episodes (one per evaluation) to <run_dir>/videos"""
     evaluate: str | None = None
-    """play --eval-episodes episodes with the network of this checkpoint, print the scores, exit
+    """play the run's evaluation at this checkpoint's step (its episodes and action samples;
+    --seed, --eval-episodes, --eval-greedy replace the run's), print the scores, exit
     (--capture-video records them to videos-evaluate next to it)"""
     render: Literal["none", "human"] = "none"
     """with --evaluate: 'human' shows the episodes in a window"""

@@ -231,10 +231,10 @@ MUTANTS = [
            '"step_count": torch.zeros_like(self.step_count),', (CKPT, RES)),
     Mutant("resume-optimizer-not-restored", "--resume keeps fresh optimizer statistics, not "
            "the checkpoint's", CHECKPOINTS,
-           'shared.optimizer.load_state_dict(checkpoint["optimizer"])',
+           "shared.optimizer.load_state_dict(checkpoint.optimizer)",
            "shared.optimizer.load_state_dict(shared.optimizer.state_dict())", (CKPT, RES)),
     Mutant("resume-global-step-reset", "--resume starts again from global step 0", CHECKPOINTS,
-           'shared.base_step[0] = checkpoint["global_step"]', "shared.base_step[0] = 0",
+           "shared.base_step[0] = checkpoint.global_step", "shared.base_step[0] = 0",
            (CKPT, RES)),
     Mutant("resume-accepts-changed-flag", "--resume silently ignores a changed flag that "
            "changes the experiment", RESUME,

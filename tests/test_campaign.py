@@ -6,7 +6,6 @@ at once; the committed plan is checked against the committed lines it extends.
 """
 
 import csv
-import io
 import json
 import os
 import shlex
@@ -17,10 +16,9 @@ import time
 from pathlib import Path
 
 import pytest
-import torch
 from a3c_runtime import checkpoints
 from a3c_tools import campaign, figure_sweeps, sweep
-from conftest import ROOT, run_main
+from conftest import ROOT, load_script, run_main, shared_for, tiny_args
 
 PLAN = ROOT / "results" / "campaign" / "plan.toml"
 
@@ -156,9 +154,11 @@ def test_progress_counts_a_begun_runs_steps_from_its_checkpoint(line, tmp_path):
     plan = extend_plan(tmp_path, line, 4)
     run_dir = line / "runs" / "run-0002"  # begun (elsewhere, say), half its 100 steps done
     run_dir.mkdir(parents=True)
-    buffer = io.BytesIO()
-    torch.save({"format": checkpoints.CHECKPOINT_FORMAT, "global_step": 50}, buffer)
-    (run_dir / "checkpoint.pt").write_bytes(checkpoints.seal(buffer.getvalue()))
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    shared = shared_for(module, args)
+    shared.steps[0] = 50
+    checkpoints.save_checkpoint(run_dir / "checkpoint.pt", shared, args, 1.0, "a3c_ff.py")
     committed = rows(line)
     for row in committed:  # each finished run: one CPU-hour (one worker, an hour)
         row["wall_time_s"] = "3600"

@@ -55,7 +55,7 @@ def run_and_check(name, flags, tmp_path, monkeypatch, capsys, steps, interval, a
         assert mark <= step < mark + interval, (mark, evaluated)
     assert evaluated[-1] >= steps
     checkpoint = runtime.load_checkpoint(str(tmp_path / "checkpoint.pt"), module.AGENT)
-    assert checkpoint["global_step"] == evaluated[-1] >= steps
+    assert checkpoint.global_step == evaluated[-1] >= steps
     # the checkpoint's network is the network that wrote it: same action probabilities
     writer = module.AGENT.build_network(actions, saved["args"])
     writer.load_state_dict(saved["model"])

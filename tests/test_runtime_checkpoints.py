@@ -40,8 +40,8 @@ def checkpoint_round_trip(module, name, folder: Path, optimizer: str):
     path.parent.mkdir()
     runtime.save_checkpoint(path, shared, args, wall_time=12.0, script=f"{name}.py")
     checkpoint = runtime.load_checkpoint(str(path), module.AGENT)
-    assert checkpoint["global_step"] == 1234 and checkpoint["wall_time"] == 12.0
-    assert checkpoint["script"] == f"{name}.py" and checkpoint["optimizer_name"] == optimizer
+    assert checkpoint.global_step == 1234 and checkpoint.wall_time == 12.0
+    assert checkpoint.script == f"{name}.py" and checkpoint.optimizer_name == optimizer
     torch.manual_seed(123)  # another initial network
     fresh = shared_for(module, args)
     runtime.restore(fresh, checkpoint, args, str(path), module.AGENT)
@@ -80,7 +80,7 @@ def test_checkpoint_round_trip_and_errors(name, tmp_path):
     elu = tiny_args(module, activation="elu")
     with pytest.raises(runtime.UsageError, match="--activation"):
         runtime.restore(fresh, checkpoint, elu, str(path), agent)
-    checkpoint["model"]["value.weight"] = torch.zeros(5, 7)
+    checkpoint.model["value.weight"] = torch.zeros(5, 7)
     with pytest.raises(runtime.UsageError, match="does not fit") as error:
         runtime.restore(fresh, checkpoint, args, str(path), agent)
     assert "\n" not in str(error.value)
@@ -130,9 +130,9 @@ def test_an_old_checkpoint_of_the_same_script_still_loads(ff_checkpoints):
     args = tiny_args(module)
     shared = shared_for(module, args)
     runtime.restore(shared, checkpoint, args, str(old), module.AGENT)
-    assert shared.global_step() == checkpoint["global_step"]
+    assert shared.global_step() == checkpoint.global_step
     for key, value in shared.model.state_dict().items():
-        assert torch.equal(value, checkpoint["model"][key]), key
+        assert torch.equal(value, checkpoint.model[key]), key
 
 
 def test_evaluating_an_old_checkpoint_of_another_network_is_a_usage_error(ff_checkpoints):
@@ -192,7 +192,7 @@ def test_a_failed_checkpoint_write_keeps_the_last_one_and_leaves_no_partial_file
     child.join(60)
     assert child.exitcode == 0
     assert errors.get() == f"could not write {path}: File too large"
-    assert runtime.load_checkpoint(str(path), module.AGENT)["global_step"] == 42
+    assert runtime.load_checkpoint(str(path), module.AGENT).global_step == 42
     assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.pt"]
 
 
@@ -293,8 +293,9 @@ def test_a_sealed_checkpoint_loads(ff_checkpoints):
     new, _ = ff_checkpoints
     assert zipfile.ZipFile(new).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
     assert runtime.checkpoints.verify_checkpoint(new.read_bytes()) is None
+    assert read_checkpoint(new)["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
     checkpoint = runtime.load_checkpoint(str(new), load_script("a3c_ff").AGENT)
-    assert checkpoint["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
+    assert checkpoint.flags == tiny_args(load_script("a3c_ff"))
     assert runtime.checkpoints.checkpoint_step(new) == 0
 
 
@@ -309,6 +310,25 @@ def test_the_closing_hint_does_not_offer_a_changed_checkpoint(ff_checkpoints, tm
     (tmp_path / "good").mkdir()
     (tmp_path / "good" / "checkpoint.pt").write_bytes(new.read_bytes())
     assert "(step 0) survives; resume: " in resume_hint(agent, tmp_path / "good")
+
+
+def test_the_closing_hint_of_a_run_whose_folder_was_removed_says_so(ff_checkpoints, tmp_path):
+    """The folder deleted mid-run took the checkpoints written there: the line says the folder
+    was removed, not that no checkpoint was written."""
+    from a3c_runtime.a3c import resume_hint
+
+    new, _ = ff_checkpoints
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "checkpoint.pt").write_bytes(new.read_bytes())  # written during the run
+    agent = load_script("a3c_ff").AGENT
+    assert "survives" in resume_hint(agent, run_dir)
+    (run_dir / "checkpoint.pt").unlink()
+    run_dir.rmdir()  # the user removes the folder
+    hint = resume_hint(agent, run_dir)
+    assert "no checkpoint was written" not in hint, hint
+    assert f"the run folder {run_dir} was removed during the run, with the checkpoints" in hint
+    assert "start the run again: python " in hint
 
 
 @pytest.mark.parametrize("mode", ["--resume", "--evaluate"])

@@ -1,12 +1,22 @@
 """a3c_runtime.evaluation: the evaluator process and --evaluate."""
 
 import pickle
-from types import SimpleNamespace
 
 import a3c_runtime as runtime
+import numpy as np
 import pytest
 import torch
-from conftest import FORK, SCRIPTS, load_script, main_exit, shared_for, tiny_args
+from a3c_runtime.resume import given_flags
+from conftest import (
+    FORK,
+    SCRIPTS,
+    load_script,
+    main_exit,
+    read_evaluations,
+    run_script,
+    shared_for,
+    tiny_args,
+)
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -57,19 +67,21 @@ def dataclass_replace(args, seed: int):
     return dataclasses.replace(args, seed=seed)
 
 
-def test_evaluate_plays_a_handful_of_episodes_when_rendering():
-    args = SimpleNamespace(eval_episodes=None, render="human")
-    assert (
-        runtime.evaluation.evaluation_episodes(args) == runtime.evaluation.HUMAN_EVAL_EPISODES == 5
-    )
-    assert (
-        runtime.evaluation.evaluation_episodes(SimpleNamespace(eval_episodes=None, render="none"))
-        == 50
-    )
-    assert (
-        runtime.evaluation.evaluation_episodes(SimpleNamespace(eval_episodes=3, render="human"))
-        == 3
-    )
+def test_evaluate_plays_the_runs_protocol_or_a_handful_of_episodes_when_rendering():
+    module = load_script("a3c_ff")
+    trained = tiny_args(module, eval_episodes=7, seed=3, eval_greedy=True)
+    protocol = runtime.evaluation.evaluation_protocol
+
+    def command(*flags: str, **values):
+        return module.Args(**values), given_flags(list(flags), module.Args)
+
+    run = protocol(trained, *command())
+    assert (run.eval_episodes, run.seed, run.eval_greedy) == (7, 3, True)  # the run's own
+    watched = protocol(trained, *command("--render", "human", render="human"))
+    assert watched.eval_episodes == runtime.evaluation.HUMAN_EVAL_EPISODES == 5
+    given = protocol(trained, *command("--eval-episodes", "4", "--seed", "1", "--no-eval-greedy",
+                                       eval_episodes=4, seed=1, eval_greedy=False))  # fmt: skip
+    assert (given.eval_episodes, given.seed, given.eval_greedy) == (4, 1, False)
 
 
 class ActionCountingEnv:
@@ -172,3 +184,25 @@ def test_the_evaluator_records_videos_only_with_capture_video(tmp_path, monkeypa
             module.AGENT, shared_for(module, args), args, None, str(tmp_path), None
         )
     assert asked == [str(tmp_path / "videos") if capture else None]
+
+
+def test_evaluate_of_a_runs_final_checkpoint_gives_its_final_evaluation(
+    tmp_path, monkeypatch, capsys
+):
+    """The same episodes (their seeds), the same action samples and the same episode count as
+    the run's own final evaluation: the same scores."""
+    run_dir = tmp_path / "run"
+    flags = ["--num-workers", "1", "--total-timesteps", "400", "--eval-interval", "200",
+             "--eval-episodes", "8", "--seed", "3", "--run-dir", str(run_dir)]  # fmt: skip
+    result = run_script("a3c_ff", *flags)
+    assert result.returncode == 0, result.stderr
+    final = read_evaluations(run_dir)[-1]
+    assert int(final["global_step"]) >= 400 and final["episodes"] == "8"
+    argv = ["--evaluate", str(run_dir / "checkpoint.pt")]
+    code, _ = main_exit(load_script("a3c_ff"), argv, monkeypatch, capsys, keep_out=True)
+    out = capsys.readouterr().out
+    assert code == 0, out
+    scores = [float(line.split()[-1]) for line in out.splitlines() if line.startswith("episode")]
+    assert len(scores) == 8 and f"step {int(final['global_step']):,}: mean score" in out, out
+    assert np.mean(scores) == float(final["mean_return"])
+    assert np.std(scores) == float(final["std_return"])

@@ -89,7 +89,7 @@ def test_the_same_value_of_any_flag_is_accepted(trained, capsys):
 
 def test_a_checkpoint_older_than_a_flag_still_loads_stating_the_fallback(trained, capsys):
     module, checkpoint, path = trained
-    del checkpoint["args"]["rms_init"], checkpoint["args"]["envs_per_worker"]  # as if older
+    del checkpoint.args["rms_init"], checkpoint.args["envs_per_worker"]  # as if older
     args = module.Args(resume=str(path))
     resumed = resumed_args(module.AGENT, checkpoint, args, {"resume"})
     assert resumed.rms_init == 0.0 and resumed.envs_per_worker == 1
@@ -106,7 +106,7 @@ def test_the_resumable_flags_are_the_issues():
 def test_a_kept_time_limit_is_announced_with_how_to_change_it(trained, capsys):
     """A run started with --time-limit stops after as many seconds again when resumed: say so."""
     module, checkpoint, path = trained
-    checkpoint["args"]["time_limit"] = 90.0
+    checkpoint.args["time_limit"] = 90.0
     args = module.Args(resume=str(path))
     resumed = resumed_args(module.AGENT, checkpoint, args, given_flags(["--resume"], module.Args))
     assert resumed.time_limit == 90.0

@@ -5,10 +5,11 @@ releases when its holder dies)."""
 import os
 import signal
 
+import a3c_runtime as runtime
 import pytest
 from a3c_runtime.flags import UsageError
 from a3c_runtime.run_folder import RunFolder
-from conftest import FORK, load_script, main_exit
+from conftest import FORK, load_script, main_exit, shared_for, tiny_args
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -148,3 +149,48 @@ def test_a_namespaced_env_id_names_one_run_folder(tmp_path):
                            exp_name="a3c_ff", seed=1)  # fmt: skip
     path = run_folder_path(args, resuming=False)
     assert path.parent == tmp_path and path.name.startswith("ALE-Breakout-v5__a3c_ff__1__")
+
+
+def test_a_resume_never_mixes_its_run_into_another_runs_folder(tmp_path, monkeypatch, capsys):
+    """--resume A/checkpoint.pt --run-dir B, B holding another run: refused in one line, B left
+    as it was; into its own folder, or an empty one, the resume goes on."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module, total_timesteps=100)
+    a, b = tmp_path / "a", tmp_path / "b"
+    for folder, step in ((a, 10), (b, 20)):
+        folder.mkdir()
+        shared = shared_for(module, args)
+        shared.steps[0] = step
+        runtime.save_checkpoint(folder / "checkpoint.pt", shared, args, 1.0, "a3c_ff.py")
+        (folder / "evaluations.csv").write_text(f"global_step,mean_return\n0,0.0\n{step},0.5\n")
+    before = {p.name: p.read_bytes() for p in b.iterdir()}
+
+    def started(*args, **kwargs):
+        raise AssertionError("a run was started")
+
+    monkeypatch.setattr("a3c_runtime.a3c.Supervisor", started)
+    argv = ["--resume", str(a / "checkpoint.pt"), "--run-dir", str(b)]
+    code, err = main_exit(module, argv, monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"the run folder {b} holds another run" in err and f"--resume {b}" in err, err
+    assert {p.name: p.read_bytes() for p in b.iterdir()} == before
+    for folder in (a, tmp_path / "empty"):  # its own folder; a new one: the gate passes it on
+        with pytest.raises(AssertionError, match="a run was started"):
+            main_exit(module, ["--resume", str(a / "checkpoint.pt"), "--run-dir", str(folder)],
+                      monkeypatch, capsys)  # fmt: skip
+
+
+def test_a_run_removes_only_the_temp_files_it_made(tmp_path):
+    """A killed run's half-written files (write_atomically's, named for it) go when its folder
+    is taken again; a user's *.tmp file, or any other, stays."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    own = [run_dir / "checkpoint.pt.a3c-partial", run_dir / "evaluations.csv.a3c-partial"]
+    users = [run_dir / "notes.tmp", run_dir / "checkpoint.pt.tmp", run_dir / "x.a3c-partial"]
+    for new_run in (True, False):  # a new run's folder, a resumed one's
+        for path in own + users:
+            path.write_text("half\n")
+        RunFolder(run_dir, new_run=new_run).close()
+        assert all(path.read_text() == "half\n" for path in users)
+        assert sorted(p.name for p in run_dir.iterdir()) == sorted(p.name for p in users)
+    assert runtime.checkpoints.partial_path(run_dir / "checkpoint.pt") == own[0]

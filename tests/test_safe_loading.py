@@ -203,17 +203,17 @@ def test_an_old_checkpoint_is_refused_naming_the_command_that_converts_it(
     result = run_main(convert_checkpoint.main, [str(path)])
     assert result.returncode == 0 and result.stdout.startswith(f"converted {path}"), result.stderr
     assert zipfile.ZipFile(path).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
-    assert not list(tmp_path.glob("*.tmp"))
+    assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob("*.a3c-partial"))
+    assert read_checkpoint(path)["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
     checkpoint = runtime.load_checkpoint(str(path), load_script("a3c_ff").AGENT)
-    assert checkpoint["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
     for key, value in read_checkpoint(good)["model"].items():
-        assert torch.equal(checkpoint["model"][key], value), key
+        assert torch.equal(checkpoint.model[key], value), key
     # the worker's state, converted, goes on as the pickled one would have
     rng, envs, obs = parts
     fresh_envs = make_vector_env("Catch-v0", 2)
     fresh_envs.reset(seed=0)
     fresh = (np.random.default_rng(0), fresh_envs, np.zeros_like(obs))
-    rng2, envs2, obs2 = restored_state(checkpoint["workers"][0], fresh)
+    rng2, envs2, obs2 = restored_state(checkpoint.workers[0], fresh)
     assert np.array_equal(obs2, obs) and rng2.random() == rng.random()
     for t in range(30):
         actions = np.array([t % 3, (t * 7) % 3])
@@ -247,3 +247,135 @@ def test_what_a_worker_state_saves_is_data(good):
     assert data_only(read_checkpoint(good))
     buffer = io.BytesIO(good.read_bytes())
     assert isinstance(torch.load(buffer, weights_only=True)["workers"][0][1], dict)
+
+
+# ------------------------------------------------------------------------------------------------
+# The gate (a3c_runtime.checkpoints.open_checkpoint): a sealed checkpoint whose fields are wrong is
+# refused in one line by every entry point, before anything is imported, created or started
+# ------------------------------------------------------------------------------------------------
+DEFECTS = {  # a sealed checkpoint changed as a careless or hostile writer would, and the line
+    # (`evil`: the absolute path of a script that, imported, creates a file)
+    "a key missing": (lambda c, evil: c.pop("args"), "is malformed: it has no 'args'"),
+    "a step of another type": (lambda c, evil: c.update(global_step="1000"),
+                               "is malformed: its 'global_step' is a str"),
+    "a flag of another type": (lambda c, evil: c["args"].update(learning_rate="fast"),
+                               "its --learning-rate 'fast' is not float"),
+    "a module to import as its env": (lambda c, evil: c["args"].update(env="this:Catch-v0"),
+                                      "holds the env 'this:Catch-v0': a module"),
+    "an unknown env": (lambda c, evil: c["args"].update(env="Nope-v9"),
+                       "an unknown env id; valid:"),
+    "an env that is no game": (lambda c, evil: c["args"].update(env="CartPole-v1"),
+                               "not an env of the scripts; valid:"),
+    "NaN weights": (lambda c, evil: c["model"]["value.weight"].fill_(float("nan")),
+                    "the network has non-finite weights"),
+    "inf weights": (lambda c, evil: c["model"]["policy.bias"].fill_(float("inf")),
+                    "the network has non-finite weights"),
+    "a complex tensor": (lambda c, evil: c["model"].update(
+                             {"value.weight": c["model"]["value.weight"] * (1 + 1j)}),
+                         "its 'model' holds a complex-valued tensor"),
+    "an absolute path as its script": (lambda c, evil: c.update(script=evil),
+                                       "not an agent script"),
+    "a path up as its script": (lambda c, evil: c.update(script="../" * 40 + evil[1:]),
+                                "not an agent script"),
+    "a million workers": (lambda c, evil: c["args"].update(num_workers=10**6),
+                          "asks for --num-workers 1000000 (valid"),
+    "a million evaluation episodes": (lambda c, evil: c["args"].update(eval_episodes=10**6),
+                                      "asks for --eval-episodes 1000000"),
+    "no workers": (lambda c, evil: c["args"].update(num_workers=0),
+                   "asks for --num-workers 0 (valid"),
+    "a pending evaluation of another network": (
+        lambda c, evil: c["pending_evaluations"].append((2000, {"w": torch.zeros(2)})),
+        "its 'pending_evaluations' are not (step, its network) pairs"),
+    "a worker by name": (lambda c, evil: c["workers"].update({"w": []}),
+                         "its 'workers' are not each worker's state by its number"),
+}  # fmt: skip
+
+
+def started(*args, **kwargs):
+    raise AssertionError("a run was started")
+
+
+def refusals(path, tmp_path, monkeypatch, capsys) -> dict[str, str]:
+    """Each entry point's line for the checkpoint at path: --evaluate, --resume, record_play,
+    convert_checkpoint, a sweep's resume and compare's, each asserted to exit 2 in one line,
+    leaving the checkpoint and its folder as they were and running nothing."""
+    from a3c_tools import compare
+
+    before, listing = path.read_bytes(), sorted(path.parent.iterdir())
+    module = load_script("a3c_ff")
+    monkeypatch.setattr("a3c_runtime.a3c.Supervisor", started)
+    monkeypatch.setattr(sweep, "execute_run", started)
+    lines = {}
+    for mode in ("--evaluate", "--resume"):
+        code, lines[mode] = main_exit(module, [mode, str(path)], monkeypatch, capsys)
+        assert code == 2 and lines[mode].count("\n") == 1, (mode, lines[mode])
+    gif = tmp_path / "play.gif"
+    for name, main, argv in (
+        ("record_play", record_play.main, [str(path), "-o", str(gif)]),
+        ("convert_checkpoint", convert_checkpoint.main, [str(path)]),
+    ):
+        result = run_main(main, argv)
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, (name, result.stderr)
+        lines[name] = result.stderr
+    assert not gif.exists()
+    assert path.read_bytes() == before and sorted(path.parent.iterdir()) == listing
+    ff = str(ROOT / "agents" / "a3c_ff.py")
+    for name, main, out, argv in (
+        ("sweep", sweep.main, tmp_path / "sweep",
+         [ff, "--out", str(tmp_path / "sweep"), "--runs", "1", "--total-timesteps", "1000"]),
+        ("compare", compare.main, tmp_path / "cmp" / "base",
+         [ff, ff, "--other-flags", "--activation elu", "--runs", "3", "--steps", "500", "--cpus",
+          "2", "--out", str(tmp_path / "cmp")]),
+    ):  # fmt: skip
+        run_dir = out / "runs" / "run-0000"
+        run_dir.mkdir(parents=True)
+        (run_dir / "checkpoint.pt").write_bytes(before)
+        result = run_main(main, argv)
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, (name, result.stderr)
+        assert "is not run-0000's to resume" in result.stderr, result.stderr
+        assert (run_dir / "checkpoint.pt").read_bytes() == before
+        lines[name] = result.stderr
+    return lines
+
+
+@pytest.mark.parametrize("defect", DEFECTS)
+def test_a_checkpoint_with_a_bad_field_is_one_line_at_every_entry_point(
+    defect, good, tmp_path, monkeypatch, capsys
+):
+    change, said = DEFECTS[defect]
+    marker, evil = tmp_path / "imported", tmp_path / "evil.py"
+    evil.write_text(f"open({str(marker)!r}, 'w').close()\n")
+    checkpoint = read_checkpoint(good)
+    change(checkpoint, str(evil))
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    rewrite_checkpoint(path, checkpoint)
+    lines = refusals(path, tmp_path, monkeypatch, capsys)
+    assert not marker.exists()  # a script the checkpoint names was never imported
+    for entry, line in lines.items():
+        assert said in line, (entry, line)
+    agent = load_script("a3c_ff").AGENT
+    assert runtime.checkpoints.checkpoint_step(path, agent) is None  # the closing hint's reader
+
+
+def test_an_archive_declaring_more_than_it_holds_is_refused_before_inflating(
+    tmp_path, monkeypatch, capsys
+):
+    """A small zip that inflates to far more (here 64 MiB from some 64 KiB): refused by the
+    sizes its members declare, nothing inflated."""
+    path = tmp_path / "checkpoint.pt"
+    with (
+        zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive,
+        archive.open("archive/data.pkl", "w") as member,
+    ):
+        for _ in range(64):
+            member.write(bytes(1 << 20))
+    assert path.stat().st_size < 1 << 20
+
+    def inflating(*args, **kwargs):
+        raise AssertionError("a member was inflated")
+
+    monkeypatch.setattr(zipfile.ZipExtFile, "read", inflating)
+    code, err = main_exit(load_script("a3c_ff"), ["--evaluate", str(path)], monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert "its members declare 67,108,864 bytes, more than the" in err, err

@@ -8,7 +8,8 @@ module per concern:
   RMSprop and Adam, gradient clipping, the learning-rate schedule, the processes' seeds;
 - `supervision`: starting and watching the processes, signals, how a run stops;
 - `evaluation`: the evaluator process, the thesis's evaluation protocol, --evaluate;
-- `checkpoints`: atomic save, validated load, restoring for --resume;
+- `checkpoints`: atomic save; the gate (a checkpoint read once, every field checked, handed on
+  as a `Checkpoint` record); restoring for --resume;
 - `resume`: --resume continues the same experiment (the checkpoint's flags);
 - `run_folder`: the run folder, checked and locked (one writer at a time);
 - `run_log`: TensorBoard, evaluations.csv, the console;
@@ -32,9 +33,11 @@ import torch.nn as nn
 
 from .a3c import run, train
 from .checkpoints import (
+    Checkpoint,
     WriteFailed,
     load_checkpoint,
     load_network,
+    open_checkpoint,
     restore,
     save_checkpoint,
 )
@@ -109,11 +112,11 @@ class Agent:
     checkpoint_defaults: dict[str, Any] = field(default_factory=dict)
     initialize: Callable[[nn.Module, Any], None] | None = None
 
-    def trained_args(self, checkpoint: dict) -> dict[str, Any]:
+    def trained_args(self, checkpoint: Checkpoint) -> dict[str, Any]:
         """The flags a checkpoint was trained with; a flag it predates has its
         checkpoint_defaults value (or, for --precision, fp32: the runs before the flag), else
         (left out here) the flag's default."""
-        return {"precision": "fp32", **self.checkpoint_defaults, **checkpoint["args"]}
+        return {"precision": "fp32", **self.checkpoint_defaults, **checkpoint.args}
 
     def build_network(self, num_actions: int, args: Any) -> nn.Module:
         # channels_last makes oneDNN's convolution backward about 2x faster on CPU
@@ -123,6 +126,7 @@ class Agent:
 __all__ = [
     "ActivationReplay",
     "Agent",
+    "Checkpoint",
     "RunFailed",
     "RunLog",
     "Shared",
@@ -144,6 +148,7 @@ __all__ = [
     "load_network",
     "make_eval_envs",
     "native_bf16",
+    "open_checkpoint",
     "play_episodes",
     "probe_env",
     "process_seed",

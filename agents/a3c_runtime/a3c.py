@@ -17,6 +17,7 @@ from typing import Any
 import torch
 
 from .checkpoints import (
+    Checkpoint,
     WriteFailed,
     check_checkpoint_path,
     checkpoint_step,
@@ -34,7 +35,7 @@ from .evaluation import (
 from .flags import UsageError, probe_env, resolve_defaults
 from .hogwild import Shared, annealed_lr, seed_everything
 from .resume import given_flags, resumed_args
-from .run_folder import RunFolder, run_folder_path
+from .run_folder import RunFolder, resume_folder, run_folder_path
 from .run_log import RunLog, format_seconds, last_evaluation, logged_steps
 from .snapshots import CHECKPOINT, EVALUATE, copy_of
 from .supervision import FORK, RunFailed, Supervisor
@@ -43,7 +44,7 @@ LATE = 2  # evaluations pending beyond which the console says the evaluator is b
 
 
 def train(
-    agent: Any, args: Any, checkpoint: dict | None = None, folder: RunFolder | None = None
+    agent: Any, args: Any, checkpoint: Checkpoint | None = None, folder: RunFolder | None = None
 ) -> dict:
     """A3C (thesis section 2.2.3, Algorithm 1): the global network theta and its optimizer
     statistics live in shared memory; N actor-learner processes each run `agent.worker`, which
@@ -55,7 +56,7 @@ def train(
     torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
     if args.resume and folder is None:
         check_checkpoint_path(args.resume, "--resume")  # before the folder is touched
-        folder = RunFolder(run_folder_path(args, resuming=True))
+        folder = resume_folder(args)
     if args.resume and checkpoint is None:
         checkpoint = load_checkpoint(args.resume, agent, "--resume")
     if checkpoint is not None and folder is not None and is_finished(checkpoint, args, folder.path):
@@ -72,12 +73,12 @@ def train(
         restore(shared, checkpoint, args, args.resume, agent)
     start_step = shared.global_step()
     # the evaluations not taken yet: a fresh run's step 0; a resumed run's, from its checkpoint
-    pending = list(checkpoint.get("pending_evaluations", [])) if checkpoint else []
+    pending = list(checkpoint.pending_evaluations) if checkpoint else []
     if checkpoint is None:
         pending.append((0, copy_of(shared.model.state_dict())))
     # the marks of the evaluations and checkpoints, and the workers' saved states, before the
     # workers fork (a3c_runtime.snapshots)
-    shared.marks.start(start_step, args, checkpoint.get("workers") if checkpoint else None)
+    shared.marks.start(start_step, args, checkpoint.workers if checkpoint else None)
     if folder is None:  # a new run's folder: created now that its flags have been checked
         folder = RunFolder(run_folder_path(args, resuming=False), new_run=True)  # locked
     run_dir = folder.path
@@ -98,7 +99,7 @@ def train(
             print(f"run {run_dir.name} -> {run_dir}", flush=True)
         print(f"pids: {supervisor.pids()}", flush=True)
         # after the fork: the TensorBoard writer's thread must not be forked
-        wall_time = checkpoint["wall_time"] if checkpoint else 0.0
+        wall_time = checkpoint.wall_time if checkpoint else 0.0
         log = RunLog(run_dir, args, wall_time, resumed_step=start_step)
         outcome, sps = watch(
             agent, supervisor, shared, args, log, (requests, evaluations, pending), run_dir,
@@ -222,16 +223,16 @@ def watch(
     return outcome, (global_step - start_of_sps) / max(end_time - start_time, 1e-9)
 
 
-def is_finished(checkpoint: dict, args: Any, run_dir: Path) -> bool:
+def is_finished(checkpoint: Checkpoint, args: Any, run_dir: Path) -> bool:
     """Whether the run a checkpoint continues into run_dir has nothing left to do: its step at
     T_max or past it, and its final evaluation in run_dir's evaluations.csv."""
-    step = int(checkpoint["global_step"])
+    step = checkpoint.global_step
     return step >= args.total_timesteps and step in logged_steps(run_dir / "evaluations.csv", step)
 
 
-def finished_summary(checkpoint: dict, args: Any, run_dir: Path) -> dict:
+def finished_summary(checkpoint: Checkpoint, args: Any, run_dir: Path) -> dict:
     """A finished run resumed: nothing is started or written; one line says so."""
-    step, last = int(checkpoint["global_step"]), last_evaluation(run_dir / "evaluations.csv")
+    step, last = checkpoint.global_step, last_evaluation(run_dir / "evaluations.csv")
     print(
         f"run {run_dir.name} is finished: step {step:,} of --total-timesteps "
         f"{args.total_timesteps:,}, final eval {last['mean_return']:.3f} at step "
@@ -242,7 +243,7 @@ def finished_summary(checkpoint: dict, args: Any, run_dir: Path) -> dict:
     return {
         "outcome": "finished already", "run_dir": str(run_dir), "global_step": step,
         "final_eval": last["mean_return"], "final_eval_step": last["global_step"],
-        "wall_time_s": checkpoint["wall_time"], "part_time_s": 0.0, "eval_time_s": 0.0,
+        "wall_time_s": checkpoint.wall_time, "part_time_s": 0.0, "eval_time_s": 0.0,
         "sps": 0.0,
     }  # fmt: skip
 
@@ -319,7 +320,7 @@ def command_line(agent: Any) -> int:
             return 0
         if args.resume:  # the same experiment, its folder locked before the checkpoint is read
             check_checkpoint_path(args.resume, "--resume")  # before the folder is touched
-            folder = RunFolder(run_folder_path(args, resuming=True))
+            folder = resume_folder(args)
             try:
                 checkpoint = load_checkpoint(args.resume, agent, "--resume")
                 given = given_flags(sys.argv[1:], agent.Args)
@@ -358,7 +359,7 @@ def resume_hint(agent: Any, run_dir: Path) -> str:
     named = os.path.basename(sys.argv[0]) == os.path.basename(agent.script)
     script = sys.argv[0] if named else os.path.join("agents", agent.script)
     path = run_dir / "checkpoint.pt"
-    step = checkpoint_step(path) if path.exists() else None
+    step = checkpoint_step(path, agent) if path.exists() else None
     relative = os.path.relpath(path)
     shown = str(path) if relative.startswith("..") else relative
     if step is None:
@@ -368,6 +369,11 @@ def resume_hint(agent: Any, run_dir: Path) -> str:
             again = f"rm -r -- {shlex.quote(str(run_dir))} && {again}"
         if path.exists():  # changed on disk since it was written: never offered for --resume
             return f"checkpoint {shown} does not verify (corrupt); start the run again: {again}"
+        if not run_dir.exists():  # removed during the run: with whatever the run wrote there
+            return (
+                f"the run folder {run_dir} was removed during the run, with the checkpoints and "
+                f"logs written there; start the run again: {again}"
+            )
         return f"no checkpoint was written in {run_dir}; start the run again: {again}"
     resume = shlex.join(["python", script, "--resume", shown])
     return f"checkpoint {shown} (step {step:,}) survives; resume: {resume}"

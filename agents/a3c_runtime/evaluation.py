@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import queue
@@ -16,7 +17,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 
-from .checkpoints import load_checkpoint, load_network
+from .checkpoints import Checkpoint, load_checkpoint, load_network
 from .flags import EVAL_EPISODES, UsageError, probe_env, resolve_precision
 from .hogwild import Shared, process_seed, seed_everything
 from .resume import flag, show
@@ -75,16 +76,18 @@ def play_episodes(
 
 
 def make_eval_envs(
-    agent: Any, args: Any, video_dir: str | None, prefix: str = "rl-video"
+    agent: Any, args: Any, video_dir: str | None, prefix: str = "rl-video", every: bool = False
 ) -> list[gym.Env]:
-    """--eval-episodes envs; with a video_dir the first records every episode it plays."""
+    """--eval-episodes envs; with a video_dir the first records every episode it plays (every:
+    each env records its own, as `prefix-<n>`; drawing the screen changes no episode)."""
     envs = []
     for i in range(args.eval_episodes):
-        if video_dir and i == 0:
+        if video_dir and (i == 0 or every):
             env = agent.make_env(args.env, render_mode="rgb_array")
             env = gym.wrappers.RecordVideo(
-                env, video_dir, episode_trigger=lambda _: True, name_prefix=prefix
-            )
+                env, video_dir, episode_trigger=lambda _: True,
+                name_prefix=f"{prefix}-{i + 1}" if every else prefix,
+            )  # fmt: skip
         else:
             env = agent.make_env(args.env)
         envs.append(env)
@@ -103,15 +106,21 @@ def evaluate_network(
 ) -> dict:
     """One evaluation of the thesis protocol: an episode per env, sampling from pi (argmax pi
     with --eval-greedy). Its random numbers (the episodes' seeds, the sampled actions) come from
-    --seed and the step, so the evaluation of a step is the same in a resumed run."""
+    --seed and the step, so the evaluation of a step is the same in a resumed run and in
+    --evaluate of the step's checkpoint."""
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
         model.set_progress(global_step / args.total_timesteps)
     start = time.time()
-    rng = np.random.default_rng([args.seed, EVALUATION_STREAM, global_step])
-    seeds = rng.integers(2**31, size=len(envs)).tolist()
-    generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
+    seeds, generator = evaluation_randomness(args.seed, global_step, len(envs))
     scores = play_episodes(model, envs, seeds, should_stop, args.eval_greedy, generator)
     return {"global_step": global_step, "scores": scores.tolist(), "seconds": time.time() - start}
+
+
+def evaluation_randomness(seed: int, global_step: int, episodes: int) -> tuple[list[int], Any]:
+    """The episodes' seeds and the action sampler's generator of the evaluation at a step."""
+    rng = np.random.default_rng([seed, EVALUATION_STREAM, global_step])
+    seeds = rng.integers(2**31, size=episodes).tolist()
+    return seeds, torch.Generator().manual_seed(int(rng.integers(2**62)))
 
 
 def evaluator(
@@ -146,14 +155,6 @@ def evaluator(
         env.close()
 
 
-def evaluation_episodes(args: Any) -> int:
-    """--evaluate's episodes: --eval-episodes, else a handful to watch with --render human and
-    the protocol's 50 otherwise."""
-    if args.eval_episodes is not None:
-        return args.eval_episodes
-    return HUMAN_EVAL_EPISODES if args.render == "human" else EVAL_EPISODES
-
-
 # what --evaluate takes from the command line; every other flag is the checkpoint's
 EVALUATE_FLAGS = ("seed", "eval_episodes", "eval_greedy", "render", "capture_video", "evaluate")
 
@@ -173,21 +174,38 @@ def check_evaluate_flags(trained: Any, args: Any, given: set[str]) -> None:
             )
 
 
+def evaluation_protocol(trained: Any, args: Any, given: set[str]) -> Any:
+    """--evaluate's protocol: the run's own evaluations' (its --seed, --eval-episodes and
+    --eval-greedy, from the checkpoint), each of them given on the command line (`given`; an
+    --eval-episodes that is not None) replacing the run's; --render human plays a handful to
+    watch unless --eval-episodes is given."""
+    protocol = dataclasses.replace(trained)
+    for name in ("seed", "eval_greedy"):
+        if name in given:
+            setattr(protocol, name, getattr(args, name))
+    if args.eval_episodes is not None:
+        protocol.eval_episodes = args.eval_episodes
+    elif args.render == "human":
+        protocol.eval_episodes = HUMAN_EVAL_EPISODES
+    elif protocol.eval_episodes is None:
+        protocol.eval_episodes = EVAL_EPISODES
+    if protocol.eval_episodes < 1:
+        raise UsageError(f"--eval-episodes must be >= 1 (got {protocol.eval_episodes})")
+    return protocol
+
+
 def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray:
     """--evaluate: play episodes with a checkpoint's network, print each score and the mean.
-    A flag named on the command line (`given`) that the checkpoint's flags contradict is
-    refused (check_evaluate_flags)."""
+    With the run's protocol (evaluation_protocol) and the checkpoint's step, the episodes and
+    the actions are those of the run's evaluation at that step (evaluate_network): the final
+    checkpoint's score is the run's final evaluation. --render human plays one episode at a
+    time in a window (the same episodes' seeds, other action samples). A flag named on the
+    command line (`given`) that the checkpoint's flags contradict is refused
+    (check_evaluate_flags)."""
     checkpoint = load_checkpoint(args.evaluate, agent, "--evaluate")
-    try:
-        trained = agent.Args(**agent.trained_args(checkpoint))
-    except TypeError as e:
-        raise UsageError(
-            f"checkpoint {args.evaluate!r} has other flags than this script: {e}"
-        ) from e
+    trained = checkpoint.flags
     check_evaluate_flags(trained, args, given)
-    episodes = evaluation_episodes(args)
-    if episodes < 1:
-        raise UsageError(f"--eval-episodes must be >= 1 (got {episodes})")
+    protocol = evaluation_protocol(trained, args, given)
     if args.render == "human":
         from catch_env.rendering import NoDisplayError, check_display
 
@@ -197,33 +215,56 @@ def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray
             raise UsageError(str(e)) from None
         except ImportError:
             pass  # the env names what it needs
-    seed_everything(args.seed)
-    num_actions = probe_env(agent.make_env, trained.env)
-    env = agent.make_env(
-        trained.env, render_mode="rgb_array" if args.capture_video else
-        ("human" if args.render == "human" else None)
-    )  # fmt: skip
-    if args.capture_video:
-        video_dir = os.path.join(os.path.dirname(args.evaluate), "videos-evaluate")
-        env = gym.wrappers.RecordVideo(env, video_dir, episode_trigger=lambda _: True)
-    model = agent.network(num_actions, trained)
-    load_network(model, checkpoint, args.evaluate)
-    if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
-        model.set_progress(checkpoint["global_step"] / trained.total_timesteps)
-    scores = []
+    seed_everything(protocol.seed)
+    num_actions = probe_env(agent.make_env, checkpoint.env)
+    model = agent.build_network(num_actions, trained)  # as the run's evaluator builds it
+    load_network(model, checkpoint)
+    video_dir = str(checkpoint.run_folder / "videos-evaluate") if args.capture_video else None
     try:
-        for episode in range(episodes):
-            seed = args.seed + episode
-            scores.append(play_episodes(model, [env], [seed], greedy=args.eval_greedy)[0])
-            print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
-    except KeyboardInterrupt:  # Ctrl-C: the episodes played so far still count
-        print(f"stopped by SIGINT after {len(scores)} episodes", flush=True)
-    env.close()
+        if args.render == "human" and not args.capture_video:  # (a video draws no window)
+            scores = watched_episodes(agent, model, checkpoint, protocol)
+        else:
+            envs = make_eval_envs(agent, protocol, video_dir, "episode", every=True)
+            try:
+                result = evaluate_network(model, envs, checkpoint.global_step, protocol)
+            finally:
+                for env in envs:
+                    env.close()
+            scores = result["scores"]
+            for episode, score in enumerate(scores):
+                print(f"episode {episode + 1}: score {score:g}", flush=True)
+    except KeyboardInterrupt:  # Ctrl-C: an evaluation is whole or not at all
+        print("stopped by SIGINT", flush=True)
+        scores = []
     if not scores:
         return np.asarray(scores)
     print(
-        f"{trained.env}, step {checkpoint['global_step']:,}: mean score {np.mean(scores):.3f} "
+        f"{checkpoint.env}, step {checkpoint.global_step:,}: mean score {np.mean(scores):.3f} "
         f"+- {np.std(scores):.3f} over {len(scores)} episodes",
         flush=True,
     )
     return np.asarray(scores)
+
+
+def watched_episodes(
+    agent: Any, model: nn.Module, checkpoint: Checkpoint, protocol: Any
+) -> list[float]:
+    """--render human: the protocol's episodes one at a time in a window, each score printed."""
+    if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
+        model.set_progress(checkpoint.global_step / protocol.total_timesteps)
+    seeds, generator = evaluation_randomness(
+        protocol.seed, checkpoint.global_step, protocol.eval_episodes
+    )
+    env = agent.make_env(checkpoint.env, render_mode="human")
+    scores = []
+    try:
+        for episode, seed in enumerate(seeds):
+            play = play_episodes(model, [env], [seed], greedy=protocol.eval_greedy,
+                                 generator=generator)  # fmt: skip
+            scores.append(float(play[0]))
+            print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
+    except KeyboardInterrupt:  # Ctrl-C: the episodes watched so far still count
+        print(f"stopped by SIGINT after {len(scores)} episodes", flush=True)
+    finally:
+        env.close()
+    return scores

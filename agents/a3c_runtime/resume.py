@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from .checkpoints import Checkpoint
 from .flags import UsageError, resolve_precision
 
 RESUMABLE = (
@@ -51,7 +52,7 @@ def show(value: Any) -> str:
     return f"{value:,}" if isinstance(value, int) and not isinstance(value, bool) else str(value)
 
 
-def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> Any:
+def resumed_args(agent: Any, checkpoint: Checkpoint, args: Any, given: set[str]) -> Any:
     """The Args of the run being resumed: the checkpoint's, with the RESUMABLE flags given on
     the command line. Prints a line for each flag that changes, for each flag the checkpoint
     predates (it takes the value agent.trained_args gives it) and for a --time-limit the run
@@ -61,7 +62,7 @@ def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> An
     for name in (f.name for f in dataclasses.fields(agent.Args)):
         # a flag newer than the checkpoint: the value the run had (trained_args), else its default
         values[name] = trained[name] if name in trained else getattr(agent.Args(), name)
-        if name not in checkpoint["args"] and name not in COMMAND_LINE_ONLY:
+        if name not in checkpoint.args and name not in COMMAND_LINE_ONLY:
             print(
                 f"note: the checkpoint predates {flag(name)}; the run goes on with "
                 f"{show(values[name])}",
@@ -93,7 +94,7 @@ def resumed_args(agent: Any, checkpoint: dict, args: Any, given: set[str]) -> An
 
 
 def differing_flags(
-    agent: Any, checkpoint: dict, args: Any, skip: tuple[str, ...] = ()
+    agent: Any, checkpoint: Checkpoint, args: Any, skip: tuple[str, ...] = ()
 ) -> list[str]:
     """The flags (COMMAND_LINE_ONLY and skip aside) of args, defaults resolved, that differ from
     the run a checkpoint holds, each as `--name THE_RUN'S, not ARGS'`: [] when the checkpoint is

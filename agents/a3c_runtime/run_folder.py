@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .checkpoints import partial_path
 from .flags import UsageError
 
 LOCK_FILE = "run.lock"
@@ -31,6 +32,15 @@ def run_folder_path(args: Any, resuming: bool) -> Path:
 
 
 RUN_FILES = ("checkpoint.pt", "evaluations.csv", "events.out.tfevents.*")
+WRITTEN_ATOMICALLY = ("checkpoint.pt", "evaluations.csv")  # through a temp file (partial_path)
+
+
+def resume_folder(args: Any) -> RunFolder:
+    """--resume's run folder, locked: the checkpoint's own, or a --run-dir that holds no other
+    run (check_no_run_in: a resume never mixes its run into another's folder)."""
+    path = run_folder_path(args, resuming=True)
+    own = path.resolve() == Path(args.resume).resolve().parent
+    return RunFolder(path, new_run=not own)
 
 
 def check_no_run_in(path: Path) -> None:
@@ -68,9 +78,9 @@ class RunFolder:
             raise UsageError(f"cannot write into the run folder {path}: permission denied")
         self.lock = self._lock(path / LOCK_FILE)
         self.owner = os.getpid()  # a forked child holds no lock: it must not remove the file
-        for stale in path.glob("*.tmp"):  # a checkpoint half written when its run was killed
-            with contextlib.suppress(OSError):
-                stale.unlink()
+        for name in WRITTEN_ATOMICALLY:  # a file half written when its run was killed: only
+            with contextlib.suppress(OSError):  # the run's own temp files, never a user's
+                partial_path(path / name).unlink()
 
     @staticmethod
     def _lock(lock_path: Path) -> int:

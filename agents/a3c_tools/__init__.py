@@ -48,6 +48,13 @@ AGENTS = ROOT / "agents"
 ATARI_REPORT_CONFIG = Path(__file__).with_name("atari_report.toml")
 
 
+def agent_scripts() -> set[str]:
+    """The agent scripts of this clone, as their checkpoints name them (relative to agents/):
+    agents/a3c_*.py and agents/future_work/a3c_*.py."""
+    found = [*AGENTS.glob("a3c_*.py"), *(AGENTS / "future_work").glob("a3c_*.py")]
+    return {path.relative_to(AGENTS).as_posix() for path in found}
+
+
 def load_script(path: Path | str) -> ModuleType:
     """Import an agent script (agents/a3c_*.py, agents/future_work/a3c_*.py) as a module named
     after its file, once per process: the scripts are run by path, not installed."""

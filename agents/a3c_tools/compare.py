@@ -327,7 +327,8 @@ def round_size(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
 
 
 def run_lines(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
-    """Sweep both lines to --runs in turns; 0, or the exit code that stopped it (2, 130)."""
+    """Sweep both lines to --runs in turns; 0, or the exit code that stopped it (2, 130: a
+    sweep's refusal is its one line)."""
     step = round_size(lines, options)
     try:
         for target in [*range(step, options.runs, step), options.runs]:
@@ -342,6 +343,9 @@ def run_lines(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
                     return code
     except KeyboardInterrupt:  # between two sweeps: each sweep handles its own
         return 130
+    except sweep.UsageError as e:  # what a line's folder holds (a checkpoint not its run's)
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -23,8 +23,9 @@ import io
 import pickle
 import sys
 from pathlib import Path
+from typing import Any
 
-from a3c_tools import run_main
+from a3c_tools import AGENTS, agent_scripts, load_script, run_main
 
 
 def converted(checkpoint: dict) -> dict:
@@ -45,6 +46,15 @@ def converted(checkpoint: dict) -> dict:
             "pending_evaluations": list(checkpoint.get("pending_evaluations", []))}  # fmt: skip
 
 
+def checked_by_its_script(checkpoint: Any) -> None:
+    """The gate's checks of a checkpoint's flags by the script that wrote it, where that script
+    is one of this clone's (a3c_runtime.checkpoints.for_agent); UsageError if they fail."""
+    from a3c_runtime.checkpoints import for_agent
+
+    if checkpoint.script in agent_scripts():
+        for_agent(checkpoint, load_script(AGENTS / checkpoint.script).AGENT)
+
+
 def convert(path: str, out: str) -> str:
     """Convert the checkpoint at path into out (which may be path); the line to print (one in
     the safe form already is left as it is). UsageError if it is corrupt or not a checkpoint."""
@@ -55,6 +65,8 @@ def convert(path: str, out: str) -> str:
         UNSAFE_FORMATS,
         WriteFailed,
         check_checkpoint_path,
+        checked,
+        open_checkpoint,
         read_checkpoint,
         seal,
         verify_checkpoint,
@@ -72,6 +84,7 @@ def convert(path: str, out: str) -> str:
         except UsageError:
             pass  # an older format, or unsafe: converted below
         else:
+            checked_by_its_script(open_checkpoint(path))  # a malformed one is refused all the same
             return f"{path} is in the safe form already: nothing to do"
     try:  # the checkpoint itself is data in every format; only v1's worker states are pickles
         checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
@@ -85,14 +98,19 @@ def convert(path: str, out: str) -> str:
     except Exception as e:
         detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
         raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
-    if not isinstance(checkpoint, dict) or "global_step" not in checkpoint:
+    if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("global_step"), int):
         raise UsageError(f"{path!r} is not a checkpoint written by the agent scripts")
     old_format = checkpoint.get("format")
+    try:
+        safe = converted(checkpoint)
+    except (AttributeError, TypeError, ValueError) as e:
+        raise UsageError(f"checkpoint {path!r} is malformed: {e}") from None
     buffer = io.BytesIO()
-    torch.save(converted(checkpoint), buffer)
+    torch.save(safe, buffer)
     sealed = seal(buffer.getvalue())
-    try:  # what is written must load safely
-        torch.load(io.BytesIO(sealed), map_location="cpu", weights_only=True)
+    try:  # what is written must load safely, and pass the gate
+        safe = torch.load(io.BytesIO(sealed), map_location="cpu", weights_only=True)
+        checked_by_its_script(checked(safe, path))
     except pickle.UnpicklingError as e:
         detail = (str(e).strip().splitlines() or [""])[0]
         raise UsageError(f"checkpoint {path!r} holds what has no safe form: {detail}") from None

@@ -19,25 +19,29 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
-from a3c_tools import AGENTS, load_script, run_main
+from a3c_tools import AGENTS, agent_scripts, load_script, run_main
 
 FRAMES_PER_SECOND = {"catch": 10, "atari": 15}  # Catch has no clock; ALE: 60 Hz / frameskip 4
 
 
-def checkpoint_script(path: str) -> str:
-    """The agent script (agents/<name>) that wrote the checkpoint, read safely
-    (a3c_runtime.checkpoints.read_checkpoint); a bad file is refused in one line."""
+def checked_checkpoint(path: str) -> tuple[Any, Any]:
+    """(its script's Agent, the checkpoint) of a checkpoint through the gate
+    (a3c_runtime.checkpoints.open_checkpoint, then for_agent), its script one of this clone's
+    agent scripts (agents/, agents/future_work/), imported only then; a bad file is refused in
+    one line."""
     from a3c_runtime import UsageError
-    from a3c_runtime.checkpoints import read_checkpoint
+    from a3c_runtime.checkpoints import for_agent, open_checkpoint
 
-    script = read_checkpoint(path).get("script")
-    if not isinstance(script, str) or not script or not (AGENTS / script).is_file():
+    checkpoint = open_checkpoint(path)
+    if checkpoint.script not in agent_scripts():
         raise UsageError(f"{path!r} does not name an agent script that wrote it")
-    return script
+    agent = load_script(AGENTS / checkpoint.script).AGENT
+    return agent, for_agent(checkpoint, agent)
 
 
 def play_recorded(
@@ -47,25 +51,24 @@ def play_recorded(
     last, the episode's raw score and the env id."""
     import gymnasium as gym
     from a3c_runtime import play_episodes
-    from a3c_runtime.checkpoints import load_checkpoint, load_network
+    from a3c_runtime.checkpoints import load_network
     from a3c_runtime.flags import probe_env
 
     import catch_env  # noqa: F401  (registers Catch-v0)
 
-    agent = load_script(AGENTS / checkpoint_script(path)).AGENT
-    checkpoint = load_checkpoint(path, agent)
-    trained = agent.Args(**agent.trained_args(checkpoint))
-    model = agent.network(probe_env(agent.make_env, trained.env), trained)
-    load_network(model, checkpoint, path)
+    agent, checkpoint = checked_checkpoint(path)
+    trained = checkpoint.flags
+    model = agent.network(probe_env(agent.make_env, checkpoint.env), trained)
+    load_network(model, checkpoint)
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
-        model.set_progress(checkpoint["global_step"] / trained.total_timesteps)
+        model.set_progress(checkpoint.global_step / trained.total_timesteps)
     # the evaluation's own episode loop; the wrapper keeps the screen after reset and each step
-    env = gym.wrappers.RenderCollection(agent.make_env(trained.env, render_mode="rgb_array"))
+    env = gym.wrappers.RenderCollection(agent.make_env(checkpoint.env, render_mode="rgb_array"))
     generator = torch.Generator().manual_seed(seed)
     score = play_episodes(model, [env], [seed], greedy=greedy, generator=generator)[0]
     frames = env.render()
     env.close()
-    return frames, float(score), trained.env
+    return frames, float(score), checkpoint.env
 
 
 def write_gif(frames: list[np.ndarray], out: Path, fps: int, scale: int = 1) -> None:
