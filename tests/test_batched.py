@@ -3,14 +3,18 @@ torch env against catch_env's NumPy env game for game, and run i of the batched 
 the script's own one-worker run with the same seed and flags, action for action and parameter
 for parameter."""
 
+import csv
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
-from a3c_runtime import seed_everything
+from a3c_runtime import evaluate_network, load_checkpoint, make_eval_envs, seed_everything
 from a3c_runtime.snapshots import saved_state
-from a3c_tools.batched import BatchedA3C, BatchedRun
+from a3c_tools import sweep
+from a3c_tools.batched import BatchedA3C, BatchedRun, resumable_checkpoint, train_batched
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
-from conftest import load_script, shared_for, tiny_args
+from conftest import ROOT, load_script, read_evaluations, run_main, shared_for, tiny_args
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -245,3 +249,123 @@ def test_run_i_of_a_batch_runs_as_the_scripts_one_worker_run(flags):
             for p, q in zip(batch.params, params[update], strict=True):
                 torch.testing.assert_close(p[i], q, rtol=0, atol=1e-3)
     assert batch.step_count == steps
+
+
+# --- The sweep's --backend batched ------------------------------------------------------------
+
+FF = str(ROOT / "agents" / "a3c_ff.py")
+TINY_RUN = ["--eval-interval", "30", "--eval-episodes", "3", "--t-max", "5"]
+
+
+def batched_sweep(out, *extra, runs: int = 2, steps: int = 60):
+    return run_main(
+        sweep.main,
+        [FF, "--out", str(out), "--runs", str(runs), "--total-timesteps", str(steps),
+         "--backend", "batched", "--sample", "learning-rate=loguniform:1e-4:1e-2", *extra],
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("extra", "says"),
+    [
+        (["--", "--num-workers", "2"], "cannot batch --num-workers 2"),
+        (["--", "--optimizer", "adam"], "cannot batch --optimizer adam"),
+        (["--", "--precision", "bf16"], "cannot batch --precision bf16"),
+        (["--sample", "activation=choice:relu,elu"], "differ in --activation"),
+        (["--sample", "gamma=uniform:0.9:0.99"], "differ in --gamma"),
+        (["--", "--t-max", "0"], "--t-max must be >= 1"),
+        (["--device", "tpu"], "--device must be cpu or cuda"),
+    ],
+)
+def test_what_the_batched_backend_cannot_batch_is_refused_in_one_line(tmp_path, extra, says):
+    result = batched_sweep(tmp_path / "out", *extra, runs=3)
+    assert result.returncode == 2, result.stderr
+    assert says in result.stderr and len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert not (tmp_path / "out").exists()  # nothing created
+
+
+def test_another_script_and_a_device_without_batched_are_refused(tmp_path):
+    lws = str(ROOT / "agents" / "a3c_lws.py")
+    result = run_main(sweep.main, [lws, "--out", str(tmp_path / "a"), "--backend", "batched"])
+    assert result.returncode == 2 and "runs a3c_ff.py, not a3c_lws.py" in result.stderr
+    result = run_main(sweep.main, [FF, "--out", str(tmp_path / "b"), "--device", "cuda"])
+    assert result.returncode == 2 and "--device needs --backend batched" in result.stderr
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_batched_sweep_writes_what_the_process_backend_writes(tmp_path):
+    """results.csv with a scored row per run, and in each run's folder evaluations.csv (step 0's
+    row the same as the script's own evaluator gives its initial network), a sealed checkpoint
+    that the script loads (at T_max, with the worker's state) and stdout.log's closing line."""
+    out = tmp_path / "out"
+    result = batched_sweep(out, "--", *TINY_RUN)
+    assert result.returncode == 0, result.stderr
+    with open(out / "results.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [row["run_id"] for row in table] == ["run-0000", "run-0001"]
+    assert all(row["status"] == "ok" and row["final_step"] == "60" for row in table)
+    module = load_script("a3c_ff")
+    for row in table:
+        run_dir = out / "runs" / row["run_id"]
+        rows = read_evaluations(run_dir)
+        assert [int(r["global_step"]) for r in rows] == [0, 30, 60]
+        assert float(row["score"]) == pytest.approx(
+            np.mean([float(r["mean_return"]) for r in rows[1:]])
+        )
+        checkpoint = load_checkpoint(str(run_dir / "checkpoint.pt"), module.AGENT)
+        assert checkpoint["global_step"] == 60 and checkpoint["args"]["seed"] == int(row["seed"])
+        assert set(checkpoint["workers"]) == {0}
+        # step 0: the run's initial network (seeded by --seed) and its evaluation seeds
+        args = tiny_args(module, seed=int(row["seed"]), eval_episodes=3, total_timesteps=60)
+        seed_everything(args.seed)
+        network = module.AGENT.build_network(3, args)
+        scores = evaluate_network(network, make_eval_envs(module.AGENT, args, None), 0, args)
+        assert float(rows[0]["mean_return"]) == np.mean(scores["scores"])
+        assert (run_dir / "stdout.log").read_text().startswith("done: final eval")
+
+
+def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path):
+    """Stopped after 4 updates (Ctrl-C), every run is checkpointed there (step 20, between two
+    marks); resumed, the runs end with the evaluations and weights of a batch never stopped."""
+    module = load_script("a3c_ff")
+
+    def runs(folder):
+        return [
+            BatchedRun(
+                tiny_args(
+                    module,
+                    seed=seed,
+                    learning_rate=lr,
+                    total_timesteps=30,
+                    eval_interval=15,
+                    eval_episodes=3,
+                    t_max=5,
+                    run_dir=str(folder / f"run-{i}"),
+                )  # fmt: skip
+            )
+            for i, (seed, lr) in enumerate(RUN_FLAGS)
+        ]
+
+    whole = train_batched(module, runs(tmp_path / "whole"))
+    assert [o["outcome"] for o in whole] == ["done", "done"]
+    asked = []
+
+    def after_4_updates() -> bool:
+        asked.append(True)
+        return len(asked) > 4
+
+    stopped = train_batched(module, runs(tmp_path / "cut"), should_stop=after_4_updates)
+    assert [o["outcome"] for o in stopped] == ["stopped by SIGINT", "stopped by SIGINT"]
+    resumed = runs(tmp_path / "cut")
+    for run in resumed:
+        run.checkpoint = resumable_checkpoint(module.AGENT, Path(run.args.run_dir))
+        assert run.checkpoint["global_step"] == 20
+    assert [o["outcome"] for o in train_batched(module, resumed)] == ["done", "done"]
+    for i in range(2):
+        a, b = tmp_path / "whole" / f"run-{i}", tmp_path / "cut" / f"run-{i}"
+        returns = [[r["mean_return"] for r in read_evaluations(run)] for run in (a, b)]
+        assert returns[0] == returns[1] and len(returns[0]) == 3
+        model_a = load_checkpoint(str(a / "checkpoint.pt"), module.AGENT)["model"]
+        model_b = load_checkpoint(str(b / "checkpoint.pt"), module.AGENT)["model"]
+        for key in model_a:
+            torch.testing.assert_close(model_a[key], model_b[key], rtol=0, atol=0)

@@ -354,9 +354,9 @@ class BatchedA3C:
             "workers": {0: saved_state(worker)},
             "pending_evaluations": [],
         }
-        save_checkpoint(files.dir / "checkpoint.pt", SimpleNamespace(model=self.cpu_model),
-                        self.args[i], files.wall_offset + wall_time, self.agent.script,
-                        snapshot)  # fmt: skip
+        shared = SimpleNamespace(model=self.cpu_model, global_step=lambda: self.step_count)
+        save_checkpoint(files.dir / "checkpoint.pt", shared, self.args[i],
+                        files.wall_offset + wall_time, self.agent.script, snapshot)  # fmt: skip
 
 
 def train_batched(
@@ -372,6 +372,8 @@ def train_batched(
     if device == "cuda":  # fp32 as the scripts compute it: no TF32 convolutions or matmuls
         torch.backends.cudnn.allow_tf32 = False
         torch.backends.cuda.matmul.allow_tf32 = False
+    else:  # one core, as one process-backend run uses (and no oversubscribed threads)
+        torch.set_num_threads(1)
     batch = BatchedA3C(module, runs, device)
     start, start_step = time.time(), batch.step_count
     files = [RunFiles(run.args, start_step, batch.wall_offsets[i]) for i, run in enumerate(runs)]
@@ -431,12 +433,84 @@ def train_batched(
     return outcomes
 
 
-def resolve_run_args(agent: Any, args: Any) -> Any:
+# ------------------------------------------------------------------------------------------------
+# The sweep's batched backend
+# ------------------------------------------------------------------------------------------------
+def planned_args(module: ModuleType, flags: list[str]) -> Any:
+    """A run's Args as its command line gives them (unresolved), or UsageError in one line."""
+    import contextlib
+    import io
+
+    import tyro
+
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            return tyro.cli(module.Args, args=flags)
+    except SystemExit:
+        lines = [line.strip("│ ") for line in err.getvalue().splitlines() if line.strip("│ ─╭╮╰╯")]
+        raise UsageError(f"the run flags {' '.join(flags)!r} do not parse: "
+                         f"{lines[1] if len(lines) > 1 else 'see --help'}") from None  # fmt: skip
+
+
+def check_batchable(script: str, runs: list[Any], out: Path) -> None:
+    """UsageError (one line) unless the sweep's runs can be one batch: before anything runs."""
+    from a3c_tools import load_script
+
+    module = load_script(script)
+    runs_args = [planned_args(module, run.command(script, out / "runs" / run.run_id)[1:])
+                 for run in runs]  # fmt: skip
+    problem = batch_problem(script, runs_args)
+    if problem is not None:
+        raise UsageError(problem)
+    resolve_run_args(copy.deepcopy(runs_args[0]))  # a bad value: the runtime's one line
+
+
+def resolve_run_args(args: Any) -> Any:
     """A run's Args with the defaults filled in; the batched runs compute in fp32."""
     from a3c_runtime import resolve_defaults
 
     args.precision = "fp32"  # (auto: the batched backend's only precision)
-    try:
-        return resolve_defaults(args)
-    except UsageError:
-        raise
+    return resolve_defaults(args)
+
+
+def run_batched(
+    script: str,
+    todo: list[Any],
+    out: Path,
+    record: Callable[[Any, dict], None],
+    should_stop: Callable[[], bool],
+    device: str,
+) -> None:
+    """The sweep's runs `todo` (a3c_tools.sweep.Run) as batches on `device`: the runs that
+    resume from the same step (their checkpoints'; 0 for new ones) are one batch. Each finished
+    run is recorded as the process backend records it; a stopped batch records nothing (its
+    runs resume from their checkpoints on the next start)."""
+    import shutil
+
+    from a3c_tools import load_script
+
+    module = load_script(script)
+    groups: dict[int, list[tuple[Any, BatchedRun]]] = {}
+    for run in todo:
+        run_dir = out / "runs" / run.run_id
+        args = resolve_run_args(planned_args(module, run.command(script, run_dir)[1:]))
+        checkpoint = resumable_checkpoint(module.AGENT, run_dir)
+        if checkpoint is None:  # a partial run that wrote no checkpoint starts again
+            shutil.rmtree(run_dir, ignore_errors=True)
+        start = int(checkpoint["global_step"]) if checkpoint else 0
+        groups.setdefault(start, []).append((run, BatchedRun(args, checkpoint)))
+    for start in sorted(groups):
+        if should_stop():
+            return
+        group = groups[start]
+        where = f"resuming at step {start:,}" if start else "from step 0"
+        print(f"batched: {len(group)} runs on {device}, {where}", flush=True)
+        outcomes = train_batched(module, [batched for _, batched in group], device, should_stop)
+        for (run, batched), outcome in zip(group, outcomes, strict=True):
+            if outcome["outcome"] != "done":
+                continue  # resumes next time
+            csv_path = Path(batched.args.run_dir) / "evaluations.csv"
+            record(run, {"returncode": 0, "interrupted": False,
+                         "wall_time_s": outcome["wall_time_s"], "stdout_tail": outcome["stdout"],
+                         "stderr_tail": "", "evaluations_csv": csv_path.read_text()})  # fmt: skip
