@@ -41,13 +41,12 @@ import torch
 from a3c_runtime import (
     UsageError,
     annealed_lr,
-    evaluate_network,
     load_checkpoint,
-    make_eval_envs,
     process_seed,
     save_checkpoint,
     seed_everything,
 )
+from a3c_runtime.evaluation import EVALUATION_STREAM
 from a3c_runtime.run_log import CSV_COLUMNS, drop_rows_after, logged_steps
 from a3c_runtime.snapshots import arrays_of, next_mark, saved_state
 from torch.func import functional_call, grad, stack_module_state, vmap
@@ -261,7 +260,7 @@ class BatchedA3C:
         if runs[0].checkpoint is not None:
             self.restore([run.checkpoint for run in runs])
         self.uniforms = ActionUniforms(self.rngs, self.device)
-        self.lrs = np.array([args.learning_rate for args in self.args])
+        self.eval_envs: TorchCatchVectorEnv | None = None
 
     def restore(self, checkpoints: list[dict]) -> None:
         """Every run from its checkpoint (all at the same step): theta, the RMSprop statistics,
@@ -340,9 +339,37 @@ class BatchedA3C:
         return {name: p[i].detach().cpu().clone() for name, p in zip(self.names, self.params,
                                                                      strict=True)}  # fmt: skip
 
-    def evaluate(self, i: int, eval_envs: list) -> dict:
-        self.cpu_model.load_state_dict(self.network(i))
-        return evaluate_network(self.cpu_model, eval_envs, self.step_count, self.args[i])
+    def evaluate(self) -> list[dict]:
+        """Every run's evaluation of the thesis protocol at this step, as the runtime's
+        `evaluate_network` plays it (its episode seeds, and its actions drawn by
+        torch.multinomial with its generator from the same keys), the runs' episodes on one
+        TorchCatchVectorEnv of N x --eval-episodes games and their networks in one vmapped
+        forward per step; only each run's draws are made on the host, from its probabilities."""
+        start, n, episodes = time.time(), len(self.runs), self.args[0].eval_episodes
+        seeds, generators = [], []
+        for args in self.args:  # evaluate_network's keys
+            rng = np.random.default_rng([args.seed, EVALUATION_STREAM, self.step_count])
+            seeds += rng.integers(2**31, size=episodes).tolist()
+            generators.append(torch.Generator().manual_seed(int(rng.integers(2**62))))
+        if self.eval_envs is None or self.eval_envs.num_envs != n * episodes:
+            self.eval_envs = TorchCatchVectorEnv(n * episodes, self.device)
+        obs = self.eval_envs.reset(seed=seeds)
+        greedy = torch.tensor([args.eval_greedy for args in self.args], device=self.device)
+        with torch.no_grad():  # (not inference mode: the env's tensors are updated outside it)
+            while True:
+                frames = network_frames(obs.view(n, episodes, *obs.shape[1:]))
+                log_probs, _ = vmap(self.forward)(self.params, frames)
+                probs = log_probs.exp().cpu()
+                drawn = torch.stack([torch.multinomial(probs[i], 1, generator=generator)[:, 0]
+                                     for i, generator in enumerate(generators)])  # fmt: skip
+                actions = torch.where(greedy[:, None], log_probs.argmax(-1), drawn.to(self.device))
+                obs, _, _, ended = self.eval_envs.step(actions.flatten())
+                if ended.any():  # Catch's games all end at their 15th step
+                    break
+        scores = self.eval_envs.final_returns.view(n, episodes).cpu().numpy()
+        seconds = (time.time() - start) / n
+        return [{"global_step": self.step_count, "scores": scores[i].tolist(), "seconds": seconds}
+                for i in range(n)]  # fmt: skip
 
     def checkpoint(self, i: int, files: RunFiles, wall_time: float) -> None:
         worker = (self.uniforms.generator(i), NumpyStateView(self.envs, i),
@@ -378,16 +405,17 @@ def train_batched(
     start, start_step = time.time(), batch.step_count
     files = [RunFiles(run.args, start_step, batch.wall_offsets[i]) for i, run in enumerate(runs)]
     a = batch.args[0]
-    eval_envs = make_eval_envs(batch.agent, a, None)
     eval_mark, checkpoint_mark = (
         next_mark(start_step, a.eval_interval),
         next_mark(start_step, a.checkpoint_interval),
     )
 
     def evaluate_all() -> None:
-        for i, run_files in enumerate(files):
+        if all(batch.step_count in run_files.logged for run_files in files):
+            return  # (a resumed run's evaluation of this step was logged before it stopped)
+        for run_files, result in zip(files, batch.evaluate(), strict=True):
             if batch.step_count not in run_files.logged:
-                run_files.evaluation(batch.evaluate(i, eval_envs), time.time() - start)
+                run_files.evaluation(result, time.time() - start)
 
     if start_step == 0:
         evaluate_all()  # the untrained network's, as every run's first row
@@ -416,8 +444,6 @@ def train_batched(
         batch.checkpoint(i, run_files, time.time() - start)
     if not stopped:
         evaluate_all()
-    for env in eval_envs:
-        env.close()
     outcomes = []
     wall = time.time() - start
     for run_files in files:
