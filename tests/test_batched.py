@@ -5,6 +5,7 @@ for parameter."""
 
 import csv
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -415,3 +416,40 @@ def test_each_runs_evaluation_is_the_runtimes_evaluation_of_its_network():
         expected = evaluate_network(network, envs, 15, args)
         assert result["global_step"] == 15 and result["scores"] == expected["scores"]
     assert sum(map(sum, (r["scores"] for r in results))) > 0  # some episodes are caught
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_each_update_on_a_gpu_is_the_scripts_update_from_its_state(monkeypatch):
+    """The per-update test on a CUDA device (the lent GPU machine's check; CI has none): the
+    batch on the GPU takes the script's actions, its theta close to the script's CPU update."""
+    module = load_script("a3c_ff")
+    runs_args = run_args(module, {"t_max": 5}, 20 * 5, RUN_FLAGS)
+    batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cuda")
+    torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
+    shareds = [one_update_shared(module, args, monkeypatch) for args in runs_args]
+    on_cpu = SimpleNamespace(
+        params=[p.cpu() for p in batch.params],
+        optimizer=SimpleNamespace(square_avg=[s.cpu() for s in batch.optimizer.square_avg]),
+    )
+    for _ in range(20):
+        on_cpu.params = [p.cpu() for p in batch.params]
+        on_cpu.optimizer.square_avg = [s.cpu() for s in batch.optimizer.square_avg]
+        on_cpu.step_count, on_cpu.uniforms = batch.step_count, batch.uniforms
+        on_cpu.envs = CpuView(batch.envs)
+        expected = [script_update(module, shared, on_cpu, i) for i, shared in enumerate(shareds)]
+        batch.update()
+        for i, (actions, params, _) in enumerate(expected):
+            np.testing.assert_array_equal(batch.last_actions[i].cpu().numpy(), actions.numpy())
+            for p, q in zip(batch.params, params, strict=True):
+                torch.testing.assert_close(p[i].cpu(), q, rtol=1e-4, atol=1e-4)
+
+
+class CpuView:
+    """A TorchCatchVectorEnv on a GPU as script_update reads it: its games' NumPy states and
+    stacked frames on the host."""
+
+    def __init__(self, envs):
+        self.envs, self.stack = envs, envs.stack.cpu()
+
+    def numpy_state(self, env):
+        return self.envs.numpy_state(env)
