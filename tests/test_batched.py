@@ -10,10 +10,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from a3c_runtime import UsageError as RunUsageError
 from a3c_runtime import evaluate_network, load_checkpoint, make_eval_envs, seed_everything
 from a3c_runtime.snapshots import saved_state
 from a3c_tools import sweep
-from a3c_tools.batched import BatchedA3C, BatchedRun, resumable_checkpoint, train_batched
+from a3c_tools.batched import BatchedA3C, BatchedRun, probe, resumable_checkpoint, train_batched
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
 from conftest import ROOT, load_script, read_evaluations, run_main, shared_for, tiny_args
 from hypothesis import given, settings
@@ -179,20 +180,23 @@ BATCH_FLAGS = [
 
 
 @pytest.mark.parametrize(
-    ("flags", "updates"),
+    ("name", "flags", "updates"),
     [
-        (BATCH_FLAGS[0], UPDATES),
-        # the other flags, in the slow tier, for fewer updates (CI's time)
-        *(pytest.param(flags, 20, marks=pytest.mark.slow) for flags in BATCH_FLAGS[1:]),
+        # every network the backend batches, at the scripts' defaults
+        *((name, BATCH_FLAGS[0], UPDATES) for name in ("a3c_ff", "a3c_ss", "a3c_ww", "a3c_lpq")),
+        # FF's other flags, in the slow tier, for fewer updates (CI's time)
+        *(pytest.param("a3c_ff", flags, 20, marks=pytest.mark.slow) for flags in BATCH_FLAGS[1:]),
     ],
 )
-def test_each_update_of_run_i_is_the_scripts_update_from_its_state(flags, updates, monkeypatch):
+def test_each_update_of_run_i_is_the_scripts_update_from_its_state(
+    name, flags, updates, monkeypatch
+):
     """Two runs with their own seeds and learning rates as one batch, 50 updates (20 in the
     slow tier): before each one, run i's state is handed to the script's own loop as its
     checkpoint would hand it (theta, RMSprop statistics, step, the worker's generator, env and
     frames); the script's update takes the batch's actions, and ends with its theta and
     statistics to float tolerance (only the order of floating-point sums differs)."""
-    module = load_script("a3c_ff")
+    module = load_script(name)
     steps = updates * min(flags["t_max"], 15)
     runs_args = run_args(module, flags, steps, RUN_FLAGS)
     batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cpu")
@@ -307,10 +311,26 @@ def test_what_the_batched_backend_cannot_batch_is_refused_in_one_line(tmp_path, 
 def test_another_script_and_a_device_without_batched_are_refused(tmp_path):
     lws = str(ROOT / "agents" / "a3c_lws.py")
     result = run_main(sweep.main, [lws, "--out", str(tmp_path / "a"), "--backend", "batched"])
-    assert result.returncode == 2 and "runs a3c_ff.py, not a3c_lws.py" in result.stderr
+    assert (
+        result.returncode == 2
+        and "a3c_ff.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py, not a3c_lws.py" in result.stderr
+    )
     result = run_main(sweep.main, [FF, "--out", str(tmp_path / "b"), "--device", "cuda"])
     assert result.returncode == 2 and "--device needs --backend batched" in result.stderr
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_network_that_does_not_run_under_vmap_is_refused_in_one_line():
+    """The probe before a batched sweep: LWS's layers branch on their data (torch.equal), which
+    vmap cannot batch; the refusal names the script and the reason."""
+    module = load_script("a3c_lws")
+    args = [tiny_args(module, seed=seed, learning_rate=lr) for seed, lr in RUN_FLAGS]
+    with pytest.raises(
+        RunUsageError,
+        match=r"cannot batch a3c_lws.py with these flags: its network "
+        r"does not run under vmap \(Batching rule not implemented for aten::equal",
+    ):
+        probe(module, args)
 
 
 def test_a_batched_sweep_writes_what_the_process_backend_writes(tmp_path):

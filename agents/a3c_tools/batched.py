@@ -20,14 +20,16 @@ worker's generator, env and frames, so the script's own --resume continues it ex
 stdout.log with the run's closing line; the sweep writes results.csv. Stopped (Ctrl-C, SIGTERM),
 every run is checkpointed at its last update, and the next start of the sweep resumes them.
 
-What it batches: the FF script (a3c_ff.py) on Catch-v0 with one worker and one env per run,
-RMSprop, fp32; runs that differ only in PER_RUN_FLAGS. Anything else is refused in one line
-before anything runs (`batch_problem`).
+What it batches: the scripts of BATCHED_SCRIPTS (FF, SS, WW, LPQ: a3c_ff.py's worker) on Catch-v0
+with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS.
+Anything else is refused in one line before anything runs (`batch_problem`, and `probe`: one
+update of the network under vmap).
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import os
 import time
 from collections.abc import Callable
@@ -53,7 +55,9 @@ from torch.func import functional_call, grad, stack_module_state, vmap
 
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
 
-BATCHED_SCRIPTS = ("a3c_ff.py",)
+# the scripts whose worker is a3c_ff.py's (tests/test_script_drift.py) and whose network vmaps;
+# not yet: LWS (its layers branch on their data), GLPQ (its tau schedule and loss), LSTM
+BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_ss.py", "a3c_ww.py", "a3c_lpq.py")
 # flags that may differ between the runs of one batch; every other flag is the batch's
 PER_RUN_FLAGS = ("seed", "learning_rate", "weight_init", "bias_init", "run_dir", "exp_name",
                  "eval_greedy")  # fmt: skip
@@ -231,7 +235,7 @@ class RunFiles:
 
 
 class BatchedA3C:
-    """N one-worker runs of the FF script in lockstep (see the module docstring)."""
+    """N one-worker runs of a script of BATCHED_SCRIPTS in lockstep (the module docstring)."""
 
     def __init__(self, module: ModuleType, runs: list[BatchedRun], device: str | torch.device):
         self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
@@ -248,7 +252,10 @@ class BatchedA3C:
             self.rngs.append(np.random.default_rng(seeds[-1]))
         self.cpu_model = models[0]  # the evaluations' and checkpoints' network
         self.base = copy.deepcopy(models[0]).to(self.device)
-        params, _ = stack_module_state(models)
+        params, buffers = stack_module_state(models)
+        for name, stacked in buffers.items():  # (SS's and WW's coordinate grids: constants)
+            if not bool((stacked == stacked[:1]).all()):
+                raise UsageError(f"the runs' networks differ in their buffer {name}: not batched")
         self.names = list(params)
         self.params = [params[k].detach().to(self.device) for k in self.names]
         self.optimizer = StackedRMSprop(self.params, first.rms_decay, first.optim_eps,
@@ -489,7 +496,23 @@ def check_batchable(script: str, runs: list[Any], out: Path) -> None:
     problem = batch_problem(script, runs_args)
     if problem is not None:
         raise UsageError(problem)
-    resolve_run_args(copy.deepcopy(runs_args[0]))  # a bad value: the runtime's one line
+    probe(module, [resolve_run_args(copy.deepcopy(args)) for args in runs_args[:2]])
+
+
+def probe(module: ModuleType, runs_args: list[Any]) -> None:
+    """UsageError (one line) where the network with these flags does not run under vmap (a
+    layer that branches on its data, say): one update of a batch of these runs, before any run
+    folder exists."""
+    runs = [BatchedRun(dataclasses.replace(args, total_timesteps=10**9)) for args in runs_args]
+    try:
+        BatchedA3C(module, runs, "cpu").update()
+    except UsageError:
+        raise
+    except Exception as e:  # functorch's "Batching rule not implemented for ...", and the like
+        detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise UsageError(f"--backend batched cannot batch {module.AGENT.script} with these "
+                         f"flags: its network does not run under vmap ({detail}); use --backend "
+                         "local") from None  # fmt: skip
 
 
 def resolve_run_args(args: Any) -> Any:
