@@ -184,6 +184,8 @@ BATCH_FLAGS = [
     [
         # every network the backend batches, at the scripts' defaults
         *((name, BATCH_FLAGS[0], UPDATES) for name in ("a3c_ff", "a3c_ss", "a3c_ww", "a3c_lpq")),
+        # GLPQ: its tau schedule (hot) and its 1/tau loss correction, at its defaults
+        ("a3c_glpq", BATCH_FLAGS[0], UPDATES),
         # FF's other flags, in the slow tier, for fewer updates (CI's time)
         *(pytest.param("a3c_ff", flags, 20, marks=pytest.mark.slow) for flags in BATCH_FLAGS[1:]),
     ],
@@ -313,8 +315,14 @@ def test_another_script_and_a_device_without_batched_are_refused(tmp_path):
     result = run_main(sweep.main, [lws, "--out", str(tmp_path / "a"), "--backend", "batched"])
     assert (
         result.returncode == 2
-        and "a3c_ff.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py, not a3c_lws.py" in result.stderr
+        and "a3c_ff.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py, a3c_glpq.py, not a3c_lws.py"
+        in result.stderr
     )
+    glpq = str(ROOT / "agents" / "a3c_glpq.py")
+    argv = [glpq, "--out", str(tmp_path / "c"), "--backend", "batched", "--", "--temperature"]
+    result = run_main(sweep.main, [*argv, "trainable"])
+    assert result.returncode == 2 and "cannot batch --temperature trainable" in result.stderr
+    assert not (tmp_path / "c").exists()
     result = run_main(sweep.main, [FF, "--out", str(tmp_path / "b"), "--device", "cuda"])
     assert result.returncode == 2 and "--device needs --backend batched" in result.stderr
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

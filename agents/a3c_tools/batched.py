@@ -20,7 +20,7 @@ worker's generator, env and frames, so the script's own --resume continues it ex
 stdout.log with the run's closing line; the sweep writes results.csv. Stopped (Ctrl-C, SIGTERM),
 every run is checkpointed at its last update, and the next start of the sweep resumes them.
 
-What it batches: the scripts of BATCHED_SCRIPTS (FF, SS, WW, LPQ: a3c_ff.py's worker) on Catch-v0
+What it batches: the scripts of BATCHED_SCRIPTS (FF, SS, WW, LPQ, GLPQ) on Catch-v0
 with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS.
 Anything else is refused in one line before anything runs (`batch_problem`, and `probe`: one
 update of the network under vmap).
@@ -55,9 +55,9 @@ from torch.func import functional_call, grad, stack_module_state, vmap
 
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
 
-# the scripts whose worker is a3c_ff.py's (tests/test_script_drift.py) and whose network vmaps;
-# not yet: LWS (its layers branch on their data), GLPQ (its tau schedule and loss), LSTM
-BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_ss.py", "a3c_ww.py", "a3c_lpq.py")
+# the scripts whose worker is a3c_ff.py's (GLPQ's adds its tau schedule and loss correction) and
+# whose network vmaps; not yet: LWS (its layers branch on their data), LSTM (recurrent)
+BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_ss.py", "a3c_ww.py", "a3c_lpq.py", "a3c_glpq.py")
 # flags that may differ between the runs of one batch; every other flag is the batch's
 PER_RUN_FLAGS = ("seed", "learning_rate", "weight_init", "bias_init", "run_dir", "exp_name",
                  "eval_greedy")  # fmt: skip
@@ -75,6 +75,13 @@ REQUIRED = {
     "capture_video": ("off", lambda v: not v),
     "time_limit": ("none", lambda v: v is None),
 }
+# a script's own flags that the batch needs at one value: GLPQ's tau is the batch's module state
+# (its schedule follows the shared step), so a trainable tau, a parameter per run, is not batched
+SCRIPT_REQUIRED = {
+    "a3c_glpq.py": {
+        "temperature": ("fixed, cold, hot or searing", lambda v: v != "trainable"),
+    },
+}
 UNIFORM_BLOCK = 256  # action uniforms drawn per run at a time
 
 
@@ -85,7 +92,7 @@ def batch_problem(script: str, runs_args: list[Any]) -> str | None:
         return (f"--backend batched runs {', '.join(BATCHED_SCRIPTS)}, not {name}; use "
                 "--backend local")  # fmt: skip
     for args in runs_args:
-        for flag, (needed, ok) in REQUIRED.items():
+        for flag, (needed, ok) in {**REQUIRED, **SCRIPT_REQUIRED.get(name, {})}.items():
             value = getattr(args, flag)
             if not ok(value):
                 return (f"--backend batched cannot batch --{flag.replace('_', '-')} {value}: it "
@@ -286,6 +293,14 @@ class BatchedA3C:
                 self.envs.set_numpy_state(i, arrays_of(env_state["env"]))
                 self.wall_offsets[i] = float(checkpoint["wall_time"])
 
+    def set_progress(self) -> None:
+        """GLPQ's tau schedule at this step, as its worker and evaluator set it (T / T_max, the
+        same in every run), and the 1/tau its loss correction takes."""
+        if hasattr(self.base, "set_progress"):
+            self.base.set_progress(self.step_count / self.total)
+        scale = getattr(self.base, "policy_loss_scale", None)
+        self.loss_scale = scale() if scale is not None else 1.0
+
     def forward(self, params: list[torch.Tensor], frames: torch.Tensor) -> Any:
         return functional_call(self.base, dict(zip(self.names, params, strict=True)), (frames,))
 
@@ -295,11 +310,14 @@ class BatchedA3C:
         loss, policy_loss, value_loss, entropy = self.module.a3c_loss(
             log_probs, actions, values, returns, a.ent_coef, a.vf_coef, a.value_loss_form
         )
+        if hasattr(self.module, "tau_corrected_loss"):  # GLPQ: the policy loss times 1/tau
+            loss = self.module.tau_corrected_loss(loss, policy_loss, entropy, self.loss_scale, a)
         return loss, (policy_loss, value_loss, entropy)
 
     def update(self) -> int:
         """One rollout of up to t_max steps in every run, and its update; returns its steps."""
         a, n_runs, envs = self.args[0], len(self.runs), self.envs
+        self.set_progress()
         frames = torch.empty((self.t_max + 1, n_runs, 4, 84, 84), dtype=torch.uint8,
                              device=self.device)  # fmt: skip
         frames[0] = envs.stack
@@ -353,6 +371,7 @@ class BatchedA3C:
         TorchCatchVectorEnv of N x --eval-episodes games and their networks in one vmapped
         forward per step; only each run's draws are made on the host, from its probabilities."""
         start, n, episodes = time.time(), len(self.runs), self.args[0].eval_episodes
+        self.set_progress()
         seeds, generators = [], []
         for args in self.args:  # evaluate_network's keys
             rng = np.random.default_rng([args.seed, EVALUATION_STREAM, self.step_count])
