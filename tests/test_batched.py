@@ -485,3 +485,20 @@ class CpuView:
 
     def numpy_state(self, env):
         return self.envs.numpy_state(env)
+
+
+def test_thesis_figures_pass_the_batched_backend_to_their_sweeps():
+    """thesis_figures --backend batched --device cuda: each line's sweep gets both; --device
+    without it is refused in one line."""
+    from a3c_tools import thesis_figures
+
+    result = run_main(
+        thesis_figures.main, ["fig6.3", "--dry-run", "--backend", "batched", "--device", "cuda"]
+    )
+    assert result.returncode == 0, result.stderr
+    sweeps = [
+        line for line in result.stdout.splitlines() if line.startswith("python -m a3c_tools.sweep")
+    ]
+    assert sweeps and all(" --backend batched --device cuda -- " in line for line in sweeps)
+    result = run_main(thesis_figures.main, ["fig6.3", "--dry-run", "--device", "cuda"])
+    assert result.returncode == 2 and "--device needs --backend batched" in result.stderr
