@@ -4,6 +4,7 @@ the script's own one-worker run with the same seed and flags, action for action 
 for parameter."""
 
 import csv
+import errno
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -11,9 +12,15 @@ import numpy as np
 import pytest
 import torch
 from a3c_runtime import UsageError as RunUsageError
-from a3c_runtime import evaluate_network, load_checkpoint, make_eval_envs, seed_everything
+from a3c_runtime import (
+    WriteFailed,
+    evaluate_network,
+    load_checkpoint,
+    make_eval_envs,
+    seed_everything,
+)
 from a3c_runtime.snapshots import saved_state
-from a3c_tools import sweep
+from a3c_tools import batched, sweep
 from a3c_tools.batched import BatchedA3C, BatchedRun, probe, resumable_checkpoint, train_batched
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
 from conftest import ROOT, load_script, read_evaluations, run_main, shared_for, tiny_args
@@ -507,3 +514,34 @@ def test_thesis_figures_pass_the_batched_backend_to_their_sweeps():
     assert sweeps and all(" --backend batched --device cuda -- " in line for line in sweeps)
     result = run_main(thesis_figures.main, ["fig6.3", "--dry-run", "--device", "cuda"])
     assert result.returncode == 2 and "--device needs --backend batched" in result.stderr
+
+
+def test_a_full_disk_stops_the_batch_with_its_checkpoints_whole(tmp_path, monkeypatch):
+    """The second checkpoint's write fails (ENOSPC, as a full disk fails it): the sweep ends with
+    exit 1 and one line saying how to go on, the first checkpoints intact; started again, it
+    resumes them from step 15 and finishes every run."""
+    save, saves = batched.save_checkpoint, []
+
+    def full_disk_at_the_second_mark(path, *rest):
+        saves.append(path)
+        if len(saves) > 2:  # two runs: their checkpoints at step 15 are written, then none
+            raise WriteFailed(path, OSError(errno.ENOSPC, "No space left on device"))
+        save(path, *rest)
+
+    monkeypatch.setattr(batched, "save_checkpoint", full_disk_at_the_second_mark)
+    out = tmp_path / "out"
+    tiny = ["--eval-interval", "15", "--eval-episodes", "2", "--t-max", "5"]
+    result = batched_sweep(out, "--", *tiny, steps=30)
+    assert result.returncode == 1
+    assert "No space left on device" in result.stderr and "start the sweep again" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and not (out / "results.csv").exists()
+    module = load_script("a3c_ff")
+    for run in ("run-0000", "run-0001"):
+        checkpoint = load_checkpoint(str(out / "runs" / run / "checkpoint.pt"), module.AGENT)
+        assert checkpoint["global_step"] == 15
+    monkeypatch.setattr(batched, "save_checkpoint", save)
+    result = batched_sweep(out, "--", *tiny, steps=30)
+    assert result.returncode == 0, result.stderr
+    assert "resuming at step 15" in result.stdout
+    for run in ("run-0000", "run-0001"):
+        assert [int(r["global_step"]) for r in read_evaluations(out / "runs" / run)] == [0, 15, 30]

@@ -28,9 +28,11 @@ update of the network under vmap).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,6 +44,7 @@ import numpy as np
 import torch
 from a3c_runtime import (
     UsageError,
+    WriteFailed,
     annealed_lr,
     load_checkpoint,
     process_seed,
@@ -235,8 +238,15 @@ class RunFiles:
         scores = np.asarray(result["scores"])
         row = [result["global_step"], round(self.wall_offset + wall_time, 2),
                float(scores.mean()), float(scores.std()), len(scores)]  # fmt: skip
-        with open(self.csv, "a") as f:
-            f.write(",".join(str(v) for v in row) + "\n")
+        line = (",".join(str(v) for v in row) + "\n").encode()
+        size = self.csv.stat().st_size
+        try:  # the row whole or not at all, as RunLog writes it
+            with open(self.csv, "ab") as f:
+                f.write(line)
+        except OSError as e:
+            with contextlib.suppress(OSError):
+                os.truncate(self.csv, size)
+            raise WriteFailed(self.csv, e) from e
         self.logged.add(result["global_step"])
         self.last_eval = (result["global_step"], float(scores.mean()))
 
@@ -574,7 +584,12 @@ def run_batched(
         group = groups[start]
         where = f"resuming at step {start:,}" if start else "from step 0"
         print(f"batched: {len(group)} runs on {device}, {where}", flush=True)
-        outcomes = train_batched(module, [batched for _, batched in group], device, should_stop)
+        try:
+            outcomes = train_batched(module, [batch for _, batch in group], device, should_stop)
+        except (WriteFailed, OSError) as e:  # a full disk, say: the checkpoints are whole
+            print(f"error: {e}; each run's last checkpoint survives: start the sweep again to "
+                  "resume them", file=sys.stderr, flush=True)  # fmt: skip
+            raise SystemExit(1) from None
         for (run, batched), outcome in zip(group, outcomes, strict=True):
             if outcome["outcome"] != "done":
                 continue  # resumes next time
