@@ -545,3 +545,64 @@ def test_a_full_disk_stops_the_batch_with_its_checkpoints_whole(tmp_path, monkey
     assert "resuming at step 15" in result.stdout
     for run in ("run-0000", "run-0001"):
         assert [int(r["global_step"]) for r in read_evaluations(out / "runs" / run)] == [0, 15, 30]
+
+
+# --- The batched pieces against the runtime's and the script's, run by run ---------------------
+
+
+@pytest.mark.parametrize("mode", ["norm", "value", "global-norm", "none"])
+def test_stacked_clipping_is_the_runtimes_clipping_of_each_run(mode):
+    """Three runs' gradients, one far above the bound, one below, one with a single tensor
+    above it: clip_stacked gives each run the runtime's clip_gradients, and its global norm."""
+    from a3c_runtime import clip_gradients
+    from a3c_tools.batched import clip_stacked
+
+    generator = torch.Generator().manual_seed(0)
+    shapes = [(4, 3), (5,), (2, 2, 2)]
+    scales = [[30.0, 30.0, 30.0], [0.1, 0.1, 0.1], [0.1, 20.0, 0.1]]
+    per_run = [[torch.randn(s, generator=generator) * k for s, k in zip(shapes, run, strict=True)]
+               for run in scales]  # fmt: skip
+    stacked = [torch.stack([run[j] for run in per_run]) for j in range(len(shapes))]
+    norms = clip_stacked(stacked, mode, 5.0)
+    for i, run in enumerate(per_run):
+        assert norms[i].item() == pytest.approx(clip_gradients(run, mode, 5.0), rel=1e-6)
+        for j, g in enumerate(run):
+            torch.testing.assert_close(stacked[j][i], g, rtol=1e-6, atol=1e-7)
+
+
+def test_stacked_rmsprop_is_the_runtimes_rmsprop_of_each_run_at_its_learning_rate():
+    from a3c_runtime import SharedRMSprop
+    from a3c_tools.batched import StackedRMSprop
+
+    generator = torch.Generator().manual_seed(1)
+    params = [torch.randn(3, 4, 2, generator=generator), torch.randn(3, 5, generator=generator)]
+    stacked = StackedRMSprop([p.clone() for p in params], 0.9, 0.1, 0.5)
+    singles = [SharedRMSprop([p[i].clone() for p in params], 0.9, 0.1, 0.5) for i in range(3)]
+    lrs = [1e-3, 1e-2, 0.5]
+    for _ in range(3):
+        grads = [torch.randn(p.shape, generator=generator) * 10 for p in params]
+        stacked.step(grads, torch.tensor(lrs))
+        for i, single in enumerate(singles):
+            single.step([g[i] for g in grads], lrs[i])
+    for i, single in enumerate(singles):
+        for p, q, s, t in zip(stacked.params, single.params, stacked.square_avg,
+                              single.square_avg, strict=True):  # fmt: skip
+            torch.testing.assert_close(p[i], q, rtol=1e-6, atol=1e-7)
+            torch.testing.assert_close(s[i], t, rtol=1e-6, atol=1e-7)
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    logits=st.lists(st.tuples(*[st.floats(-20, 20)] * 3), min_size=1, max_size=8),
+    uniforms=st.lists(st.floats(0, 1, exclude_max=True), min_size=8, max_size=8),
+)
+def test_the_batchs_action_draws_are_the_workers(logits, uniforms):
+    """For the same probabilities and uniforms, sample_actions on torch tensors draws the
+    script's inverse-CDF actions (a3c_ff.sample_actions on NumPy arrays)."""
+    from a3c_tools.batched import sample_actions
+
+    module = load_script("a3c_ff")
+    log_probs = torch.log_softmax(torch.tensor(logits, dtype=torch.float32), dim=1)
+    u = np.array(uniforms[: len(logits)])
+    expected = module.sample_actions(log_probs.exp().numpy(), u)
+    np.testing.assert_array_equal(sample_actions(log_probs, torch.from_numpy(u)).numpy(), expected)
