@@ -187,3 +187,33 @@ def test_the_fault_injection_knows_every_closing_hint(tmp_path, monkeypatch):
     assert "rm -r -- " in hints[1] and "survives" in hints[2] and "not verify" in hints[3]
     for hint in hints:
         assert re.match(pattern, hint), hint
+
+
+def test_batched_throughput_reports_each_batch(monkeypatch, capsys):
+    """A batch of 2 runs for half a second (CPU), no process backend."""
+    result = run(
+        "batched_throughput.py",
+        *("--runs", "2", "--seconds", "0.5", "--process-runs", "0"),
+        monkeypatch=monkeypatch,
+        capsys=capsys,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "process backend" not in result.stdout
+    assert re.search(r"batched N=2: [\d,]+ run-steps/s; one evaluation \(N x 50 episodes\) "
+                     r"[\d.]+ s; .* thesis-scale line .* [\d.]+ min", result.stdout)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_batched_throughput_reports_each_batch_against_the_process_backend(monkeypatch, capsys):
+    """One process-backend run of a few seconds, and a batch of 2 runs for 1 s (CPU)."""
+    result = run(
+        "batched_throughput.py",
+        *("--runs", "2", "--seconds", "1", "--process-runs", "1", "--process-seconds", "8"),
+        monkeypatch=monkeypatch,
+        capsys=capsys,
+    )
+    assert result.returncode == 0, result.stderr
+    assert re.search(r"process backend: 1 one-worker runs side by side: [\d,]+ run-steps/s",
+                     result.stdout)  # fmt: skip
+    assert re.search(r"batched N=2: [\d,]+ run-steps/s = [\d.]+x the process backend",
+                     result.stdout)  # fmt: skip

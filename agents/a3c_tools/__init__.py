@@ -27,6 +27,9 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
 - `campaign`: a fixed plan of sweeps run in its order over sessions, resumable, with its
   progress (results/campaign/plan.toml).
 
+`batched` is the sweep's batched backend (`--backend batched`: a sweep's runs as one program on
+one device, docs/reproducing.md), and `torch_catch` its Catch-v0 in torch.
+
 Nothing runs at import; the tools' own dependencies (matplotlib, scipy, rliable) are the `tools`
 extra.
 """

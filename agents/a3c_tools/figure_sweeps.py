@@ -260,9 +260,15 @@ def figure_parser(
     return parser
 
 
-def add_backend_arguments(parser: Parser) -> None:
-    """Where the sweeps run: sweep.py's --backend, --address and --cpus."""
-    parser.add_argument("--backend", choices=["local", "ray"], default="local")
+def add_backend_arguments(parser: Parser, batched: bool = False) -> None:
+    """Where the sweeps run: sweep.py's --backend, --address and --cpus (and, for Catch lines,
+    `batched`: --backend batched and its --device)."""
+    backends = ["local", "ray", "batched"] if batched else ["local", "ray"]
+    parser.add_argument("--backend", choices=backends, default="local")
+    if batched:
+        parser.add_argument(
+            "--device", choices=["cpu", "cuda"], default=None, help="with --backend batched"
+        )
     parser.add_argument("--address", default=None, help="with --backend ray: a running cluster")
     parser.add_argument("--cpus", type=positive_int, default=None, help="passed to sweep.py")
 
@@ -298,6 +304,8 @@ def check_run_options(
         parser.error(f"the following arguments are required: {', '.join(missing)}")
     if options.address and options.backend != "ray":
         parser.error("--address needs --backend ray")
+    if getattr(options, "device", None) and options.backend != "batched":
+        parser.error("--device needs --backend batched")
 
 
 def data_or_exit(read: Callable[[], Any], tool: str) -> int | None:

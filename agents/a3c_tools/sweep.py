@@ -86,6 +86,13 @@ Backends.
   task returns the run's evaluations.csv and log tails, which the sweep writes into its own
   OUT/runs/<run_id>/ when the run ran on another node, so OUT need not be a shared file system.
   A task whose node dies is retried by Ray (3 times, its default), from scratch.
+- batched (`--backend batched`, `--device cpu|cuda`): the runs as one batched program on one
+  device (a3c_tools.batched): run i is the script's own one-worker run with its seed and flags
+  (tests/test_batched.py), its folder gets what a run writes (evaluations.csv, checkpoint.pt,
+  stdout.log). It runs a3c_ff.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and a3c_glpq.py on
+  Catch-v0 with one worker; the runs may differ in their seed, learning rate, weight and bias
+  init; anything else it cannot batch is refused in one line (exit 2) before anything runs.
+  Ctrl-C checkpoints every run at its last update; the next start resumes them.
 
 Exit codes: 0 when every run is in the table and at least one is ok, 1 when every run failed,
 2 for bad arguments or a mismatched configuration, 130 when interrupted.
@@ -904,7 +911,18 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         help="a sampled flag: NAME=loguniform:LOW:HIGH, NAME=uniform:LOW:HIGH or "
         "NAME=choice:A,B,...; repeat for more flags",
     )
-    parser.add_argument("--backend", choices=["local", "ray"], default="local")
+    parser.add_argument(
+        "--backend",
+        choices=["local", "ray", "batched"],
+        default="local",
+        help="local: a process per run (default); ray: a Ray task per run; batched: the runs "
+        "as one program on --device (FF, SS, WW, LPQ, GLPQ on Catch-v0, one worker per run)",
+    )
+    parser.add_argument(
+        "--device",
+        default="cpu",
+        help="with --backend batched: the torch device of the batch, cpu or cuda (default cpu)",
+    )
     parser.add_argument(
         "--address",
         default=None,
@@ -948,6 +966,10 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
         raise UsageError(f"--total-timesteps must be >= 1 (got {args.total_timesteps})")
     if args.address and args.backend != "ray":
         raise UsageError("--address needs --backend ray")
+    if args.device != "cpu" and args.backend != "batched":
+        raise UsageError("--device needs --backend batched")
+    if args.device not in ("cpu", "cuda"):
+        raise UsageError(f"--device must be cpu or cuda (got {args.device!r})")
     for value, flag in ((args.cpus, "--cpus"), (args.max_concurrent, "--max-concurrent")):
         if value is not None and value < 1:
             raise UsageError(f"{flag} must be >= 1 (got {value})")
@@ -966,6 +988,8 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
     config = configuration(args, fixed)
     runs = plan_runs(config, args.runs)
     out = Path(args.out)
+    if args.backend == "batched":
+        check_batched(args, runs, out)
     if args.dry_run:
         for run in runs:
             print(shlex.join(["python", *run.command(args.script, out / RUNS_DIR / run.run_id)]))
@@ -982,6 +1006,25 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
                 raise UsageError(problem)
         check_config(out, config)
         return run_sweep(args, out, runs, names)
+
+
+def check_batched(args: argparse.Namespace, runs: list[Run], out: Path) -> None:
+    """--backend batched: UsageError, before anything runs, for runs it cannot batch (another
+    script, env or optimizer, several workers, flags that differ between runs other than the
+    seed and the learning rate...) or a --device this machine lacks."""
+    from a3c_runtime import UsageError as RunUsageError
+
+    from a3c_tools.batched import check_batchable
+
+    if args.device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise UsageError("--device cuda: torch sees no CUDA device here; use --device cpu")
+    try:
+        check_batchable(args.script, runs, out)
+    except RunUsageError as e:
+        raise UsageError(str(e)) from None
 
 
 def configuration(args: argparse.Namespace, fixed: list[str]) -> dict:
@@ -1060,6 +1103,10 @@ def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[
     with StopRequests() as stop:
         if todo and args.backend == "local":
             run_local(args.script, todo, out, record, cpus, args.max_concurrent, stop)
+        elif todo and args.backend == "batched":
+            from a3c_tools.batched import run_batched
+
+            run_batched(args.script, todo, out, record, lambda: stop.level > 0, args.device)
         elif todo:
             run_ray(args.script, todo, out, record, args.cpus, args.address, stop)
     if stop.level > 0:

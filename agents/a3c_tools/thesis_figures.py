@@ -254,6 +254,7 @@ def sweep_command(figure: Figure, line: Line, options: argparse.Namespace, runs:
         command += ["--sample", sample]
     command += ["--backend", options.backend]
     for flag, value in (
+        ("--device", options.device),
         ("--address", options.address),
         ("--cpus", options.cpus),
         ("--max-concurrent", options.max_concurrent),
@@ -449,7 +450,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         metavar="K",
         help="run the lines in rounds of K more runs each (default: all runs of a line at once)",
     )
-    figure_sweeps.add_backend_arguments(parser)
+    figure_sweeps.add_backend_arguments(parser, batched=True)
     parser.add_argument(
         "--max-concurrent", type=positive_int, default=None, help="passed to sweep.py"
     )

@@ -1,0 +1,599 @@
+"""The batched backend of the sweep (`python -m a3c_tools.sweep ... --backend batched`): N
+single-worker runs of a thesis script as one batched program on one device (a GPU, or the CPU),
+in the manner of PureJaxRL's vmapped training.
+
+Run i is the script's own one-worker run (`--num-workers 1`) with its seed and flags: the same
+initial network (built by the script's class after seeding with the run's --seed), the same env
+(Catch-v0 in torch, a3c_tools.torch_catch, seeded as the worker seeds its NumPy env), the same
+action draws (the worker's NumPy generator, its uniforms drawn in blocks and uploaded), the same
+rollouts, n-step returns (the script's `n_step_returns`, the runs as its K columns), loss (the
+script's `a3c_loss`), gradient clipping, RMSprop statistics and annealed learning rate, and the
+same evaluations (the runtime's `evaluate_network`: 50 episodes every --eval-interval steps with
+the run's episode seeds). The N networks are the script's `ActorCritic`, their parameters stacked
+(torch.func.stack_module_state) and called through torch.func.functional_call under vmap, the
+gradients by vmap(grad(loss)). tests/test_batched.py checks that run i takes the script's actions
+with its parameters to float tolerance. Only the order of floating-point sums differs.
+
+Each run's folder gets what the process backend writes: evaluations.csv (the same rows), a
+sealed checkpoint.pt in the safe format at each --checkpoint-interval and at the end (with the
+worker's generator, env and frames, so the script's own --resume continues it exactly),
+stdout.log with the run's closing line; the sweep writes results.csv. Stopped (Ctrl-C, SIGTERM),
+every run is checkpointed at its last update, and the next start of the sweep resumes them.
+
+What it batches: the scripts of BATCHED_SCRIPTS (FF, SS, WW, LPQ, GLPQ) on Catch-v0
+with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS.
+Anything else is refused in one line before anything runs (`batch_problem`, and `probe`: one
+update of the network under vmap).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import dataclasses
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType, SimpleNamespace
+from typing import Any
+
+import numpy as np
+import torch
+from a3c_runtime import (
+    UsageError,
+    WriteFailed,
+    annealed_lr,
+    load_checkpoint,
+    process_seed,
+    save_checkpoint,
+    seed_everything,
+)
+from a3c_runtime.evaluation import EVALUATION_STREAM
+from a3c_runtime.run_log import CSV_COLUMNS, drop_rows_after, logged_steps
+from a3c_runtime.snapshots import arrays_of, next_mark, saved_state
+from torch.func import functional_call, grad, stack_module_state, vmap
+
+from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
+
+# the scripts whose worker is a3c_ff.py's (GLPQ's adds its tau schedule and loss correction) and
+# whose network vmaps; not yet: LWS (its layers branch on their data), LSTM (recurrent)
+BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_ss.py", "a3c_ww.py", "a3c_lpq.py", "a3c_glpq.py")
+# flags that may differ between the runs of one batch; every other flag is the batch's
+PER_RUN_FLAGS = ("seed", "learning_rate", "weight_init", "bias_init", "run_dir", "exp_name",
+                 "eval_greedy")  # fmt: skip
+# flag -> (what the batched backend needs, the check): a run with another value is refused
+REQUIRED = {
+    "env": ("Catch-v0", lambda v: v == "Catch-v0"),
+    "num_workers": ("1", lambda v: v == 1),
+    "envs_per_worker": ("1", lambda v: v == 1),
+    "optimizer": ("rmsprop", lambda v: v == "rmsprop"),
+    "precision": (
+        "fp32 or auto (the batched runs compute in fp32)",
+        lambda v: v in ("fp32", "auto"),
+    ),
+    "track": ("off", lambda v: not v),
+    "capture_video": ("off", lambda v: not v),
+    "time_limit": ("none", lambda v: v is None),
+}
+# a script's own flags that the batch needs at one value: GLPQ's tau is the batch's module state
+# (its schedule follows the shared step), so a trainable tau, a parameter per run, is not batched
+SCRIPT_REQUIRED = {
+    "a3c_glpq.py": {
+        "temperature": ("fixed, cold, hot or searing", lambda v: v != "trainable"),
+    },
+}
+UNIFORM_BLOCK = 256  # action uniforms drawn per run at a time
+
+
+def batch_problem(script: str, runs_args: list[Any]) -> str | None:
+    """Why these runs (their parsed, unresolved Args) cannot be one batch, in one line, or None."""
+    name = os.path.basename(script)
+    if name not in BATCHED_SCRIPTS:
+        return (f"--backend batched runs {', '.join(BATCHED_SCRIPTS)}, not {name}; use "
+                "--backend local")  # fmt: skip
+    for args in runs_args:
+        for flag, (needed, ok) in {**REQUIRED, **SCRIPT_REQUIRED.get(name, {})}.items():
+            value = getattr(args, flag)
+            if not ok(value):
+                return (f"--backend batched cannot batch --{flag.replace('_', '-')} {value}: it "
+                        f"needs {needed}; use --backend local")  # fmt: skip
+    first = vars(runs_args[0])
+    for args in runs_args[1:]:
+        for flag, value in vars(args).items():
+            if flag not in PER_RUN_FLAGS and value != first[flag]:
+                return (f"--backend batched cannot batch runs that differ in "
+                        f"--{flag.replace('_', '-')} ({first[flag]} and {value}): only "
+                        f"{', '.join('--' + f.replace('_', '-') for f in PER_RUN_FLAGS)} may; "
+                        "use --backend local")  # fmt: skip
+    return None
+
+
+# ------------------------------------------------------------------------------------------------
+# The pieces of the worker's update, for N runs at once
+# ------------------------------------------------------------------------------------------------
+def network_frames(frames: torch.Tensor) -> torch.Tensor:
+    """uint8 frames (N, B, 4, 84, 84) as float32 with each run's (B, 4, 84, 84) channels-last:
+    the layout the scripts' networks convert their input to, so that their
+    `obs.to(float32, channels_last)` is a no-op under vmap (which cannot change a layout)."""
+    return frames.permute(0, 1, 3, 4, 2).contiguous().float().permute(0, 1, 4, 2, 3)
+
+
+def sample_actions(log_probs: torch.Tensor, uniforms: torch.Tensor) -> torch.Tensor:
+    """The worker's inverse-CDF sampling (a3c_ff.sample_actions) on the device, with the same
+    float32 cumulative sums compared in float64 as NumPy compares them: for the same
+    probabilities and uniforms, the same actions."""
+    probs = log_probs.float().exp()
+    cdf = probs.cumsum(dim=1)
+    below = cdf.double() <= uniforms[:, None] * cdf[:, -1:].double()
+    return below.sum(dim=1).clamp(max=probs.shape[1] - 1)
+
+
+def clip_stacked(grads: list[torch.Tensor], mode: str, bound: float) -> torch.Tensor:
+    """a3c_runtime.clip_gradients for each run of stacked gradients (N, ...), in place: the same
+    factors, chosen per run. Returns each run's global norm before clipping (N,)."""
+    norms = torch.stack([g.flatten(1).norm(dim=1) for g in grads], dim=1)  # (N, tensors)
+    global_norm = torch.linalg.vector_norm(norms, dim=1)
+    if mode == "norm":  # where any tensor of a run exceeds the bound, each scaled by its own
+        factors = (bound / (norms + 1e-6)).clamp(max=1.0)
+        factors = torch.where((norms > bound).any(dim=1, keepdim=True), factors, 1.0)
+        for j, g in enumerate(grads):
+            g.mul_(factors[:, j].view(-1, *[1] * (g.dim() - 1)))
+    elif mode == "value":
+        for g in grads:
+            g.clamp_(-bound, bound)
+    elif mode == "global-norm":
+        factor = torch.where(global_norm > bound, (bound / (global_norm + 1e-6)).clamp(max=1), 1.0)
+        for g in grads:
+            g.mul_(factor.view(-1, *[1] * (g.dim() - 1)))
+    return global_norm
+
+
+class StackedRMSprop:
+    """a3c_runtime.SharedRMSprop for each run of stacked parameters (N, ...), each run with its
+    own learning rate: ms <- rho ms + (1 - rho) g^2; theta <- theta - lr g / sqrt(ms + eps)."""
+
+    def __init__(self, params: list[torch.Tensor], decay: float, eps: float, initial: float):
+        self.params, self.decay, self.eps = params, decay, eps
+        self.square_avg = [torch.full_like(p, initial) for p in params]
+
+    @torch.no_grad()
+    def step(self, grads: list[torch.Tensor], lrs: torch.Tensor) -> None:
+        torch._foreach_mul_(self.square_avg, self.decay)
+        torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
+        inv_rms = torch._foreach_add(self.square_avg, self.eps)
+        torch._foreach_pow_(inv_rms, -0.5)
+        for p, g, inv in zip(self.params, grads, inv_rms, strict=True):
+            p.addcmul_(g * inv, lrs.view(-1, *[1] * (p.dim() - 1)), value=-1.0)
+
+
+class ActionUniforms:
+    """Each run's worker generator (np.random.default_rng(its process seed)), drawn in blocks:
+    the k-th uniform of a block is the k-th `rng.random(1)` the worker would draw. `generator(i)`
+    is run i's generator where the worker's would be now, for its checkpoint."""
+
+    def __init__(self, rngs: list[np.random.Generator], device: torch.device):
+        self.rngs, self.device = rngs, device
+        self.block_states: list[dict] = []
+        self.block = torch.empty(0)
+        self.used = UNIFORM_BLOCK
+
+    def next(self) -> torch.Tensor:
+        if self.used == UNIFORM_BLOCK:
+            self.block_states = [rng.bit_generator.state for rng in self.rngs]
+            draws = np.stack([rng.random(UNIFORM_BLOCK) for rng in self.rngs], axis=1)
+            self.block = torch.as_tensor(draws, device=self.device)
+            self.used = 0
+        self.used += 1
+        return self.block[self.used - 1]
+
+    def generator(self, i: int) -> np.random.Generator:
+        if not self.block_states:
+            return copy.deepcopy(self.rngs[i])
+        rng = np.random.Generator(np.random.PCG64())
+        rng.bit_generator.state = self.block_states[i]
+        rng.random(self.used)
+        return rng
+
+
+# ------------------------------------------------------------------------------------------------
+# The runs
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class BatchedRun:
+    """One run of a batch: its resolved Args (run_dir set) and what it resumes from."""
+
+    args: Any
+    checkpoint: dict | None = None
+
+
+def resumable_checkpoint(agent: Any, run_dir: Path) -> dict | None:
+    """The run folder's checkpoint if it holds the worker's state (an exact resume), else None
+    (the run starts again)."""
+    path = run_dir / "checkpoint.pt"
+    if not path.is_file():
+        return None
+    checkpoint = load_checkpoint(str(path), agent)
+    return checkpoint if checkpoint.get("workers", {}).get(0) else None
+
+
+class RunFiles:
+    """A run folder's evaluations.csv (RunLog's rows), checkpoint and stdout.log."""
+
+    def __init__(self, args: Any, start_step: int, wall_offset: float):
+        self.args, self.dir = args, Path(args.run_dir)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.csv = self.dir / "evaluations.csv"
+        if start_step and self.csv.exists():
+            drop_rows_after(self.csv, start_step)
+        if not self.csv.exists() or self.csv.stat().st_size == 0:
+            self.csv.write_text(",".join(CSV_COLUMNS) + "\n")
+        self.logged = logged_steps(self.csv, 2**62)
+        self.wall_offset = wall_offset
+        self.last_eval: tuple[int, float] | None = None
+
+    def evaluation(self, result: dict, wall_time: float) -> None:
+        scores = np.asarray(result["scores"])
+        row = [result["global_step"], round(self.wall_offset + wall_time, 2),
+               float(scores.mean()), float(scores.std()), len(scores)]  # fmt: skip
+        line = (",".join(str(v) for v in row) + "\n").encode()
+        size = self.csv.stat().st_size
+        try:  # the row whole or not at all, as RunLog writes it
+            with open(self.csv, "ab") as f:
+                f.write(line)
+        except OSError as e:
+            with contextlib.suppress(OSError):
+                os.truncate(self.csv, size)
+            raise WriteFailed(self.csv, e) from e
+        self.logged.add(result["global_step"])
+        self.last_eval = (result["global_step"], float(scores.mean()))
+
+
+class BatchedA3C:
+    """N one-worker runs of a script of BATCHED_SCRIPTS in lockstep (the module docstring)."""
+
+    def __init__(self, module: ModuleType, runs: list[BatchedRun], device: str | torch.device):
+        self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
+        self.runs = runs
+        self.args = [run.args for run in runs]
+        first = self.args[0]
+        self.total, self.t_max = first.total_timesteps, first.t_max
+        n = len(runs)
+        models, self.rngs, seeds = [], [], []
+        for args in self.args:
+            seed_everything(args.seed)  # as a3c_runtime.train builds the run's network
+            models.append(self.agent.build_network(3, args))
+            seeds.append(process_seed(args.seed, 0))  # the worker's seed
+            self.rngs.append(np.random.default_rng(seeds[-1]))
+        self.cpu_model = models[0]  # the evaluations' and checkpoints' network
+        self.base = copy.deepcopy(models[0]).to(self.device)
+        params, buffers = stack_module_state(models)
+        for name, stacked in buffers.items():  # (SS's and WW's coordinate grids: constants)
+            if not bool((stacked == stacked[:1]).all()):
+                raise UsageError(f"the runs' networks differ in their buffer {name}: not batched")
+        self.names = list(params)
+        self.params = [params[k].detach().to(self.device) for k in self.names]
+        self.optimizer = StackedRMSprop(self.params, first.rms_decay, first.optim_eps,
+                                        first.rms_init)  # fmt: skip
+        self.envs = TorchCatchVectorEnv(n, self.device)
+        self.envs.reset(seed=seeds)
+        self.step_count = 0
+        self.wall_offsets = [0.0] * n
+        if runs[0].checkpoint is not None:
+            self.restore([run.checkpoint for run in runs])
+        self.uniforms = ActionUniforms(self.rngs, self.device)
+        self.eval_envs: TorchCatchVectorEnv | None = None
+
+    def restore(self, checkpoints: list[dict]) -> None:
+        """Every run from its checkpoint (all at the same step): theta, the RMSprop statistics,
+        the worker's generator, env and frames."""
+        steps = {int(c["global_step"]) for c in checkpoints}
+        assert len(steps) == 1, "a batch resumes from one step"
+        self.step_count = steps.pop()
+        with torch.no_grad():
+            for i, checkpoint in enumerate(checkpoints):
+                for j, name in enumerate(self.names):
+                    self.params[j][i] = checkpoint["model"][name].to(self.device)
+                    square_avg = checkpoint["optimizer"]["square_avg"][j]
+                    self.optimizer.square_avg[j][i] = square_avg.to(self.device)
+                rng_state, env_state, _ = checkpoint["workers"][0]
+                self.rngs[i].bit_generator.state = rng_state["bit_generator"]
+                self.envs.set_numpy_state(i, arrays_of(env_state["env"]))
+                self.wall_offsets[i] = float(checkpoint["wall_time"])
+
+    def set_progress(self) -> None:
+        """GLPQ's tau schedule at this step, as its worker and evaluator set it (T / T_max, the
+        same in every run), and the 1/tau its loss correction takes."""
+        if hasattr(self.base, "set_progress"):
+            self.base.set_progress(self.step_count / self.total)
+        scale = getattr(self.base, "policy_loss_scale", None)
+        self.loss_scale = scale() if scale is not None else 1.0
+
+    def forward(self, params: list[torch.Tensor], frames: torch.Tensor) -> Any:
+        return functional_call(self.base, dict(zip(self.names, params, strict=True)), (frames,))
+
+    def loss(self, params, frames, actions, returns):
+        a = self.args[0]
+        log_probs, values = self.forward(params, frames)
+        loss, policy_loss, value_loss, entropy = self.module.a3c_loss(
+            log_probs, actions, values, returns, a.ent_coef, a.vf_coef, a.value_loss_form
+        )
+        if hasattr(self.module, "tau_corrected_loss"):  # GLPQ: the policy loss times 1/tau
+            loss = self.module.tau_corrected_loss(loss, policy_loss, entropy, self.loss_scale, a)
+        return loss, (policy_loss, value_loss, entropy)
+
+    def update(self) -> int:
+        """One rollout of up to t_max steps in every run, and its update; returns its steps."""
+        a, n_runs, envs = self.args[0], len(self.runs), self.envs
+        self.set_progress()
+        frames = torch.empty((self.t_max + 1, n_runs, 4, 84, 84), dtype=torch.uint8,
+                             device=self.device)  # fmt: skip
+        frames[0] = envs.stack
+        actions = torch.zeros((self.t_max, n_runs), dtype=torch.int64, device=self.device)
+        rewards = torch.zeros((self.t_max, n_runs), dtype=torch.float32, device=self.device)
+        dones = np.zeros((self.t_max, n_runs), dtype=bool)
+        with torch.no_grad():
+            act = vmap(self.forward)
+            for t in range(self.t_max):
+                log_probs, _ = act(self.params, network_frames(frames[t][:, None]))
+                actions[t] = sample_actions(log_probs[:, 0], self.uniforms.next())
+                obs, rewards[t], _, ended = envs.step(actions[t])
+                frames[t + 1] = obs
+                if ended.any():
+                    # Catch's episodes all last 15 steps: the runs' episodes end together
+                    if not ended.all():
+                        raise RuntimeError("the runs' episodes ended at different steps")
+                    dones[t] = True
+                    break
+            n = t + 1
+            bootstrap = np.zeros(n_runs, dtype=np.float32)
+            if not dones[n - 1].all():  # V(s_n), as the worker's learning pass computes it
+                bootstrap = act(self.params, network_frames(frames[n][:, None]))[1][:, 0]
+                bootstrap = bootstrap.float().cpu().numpy()
+        done_values = np.zeros((n, n_runs), dtype=np.float32)  # (Catch never truncates)
+        returns = self.module.n_step_returns(
+            rewards[:n].cpu().numpy(), dones[:n], done_values, bootstrap, a.gamma
+        )
+        grads, (policy_loss, value_loss, entropy) = vmap(grad(self.loss, has_aux=True))(
+            self.params,
+            network_frames(frames[:n].transpose(0, 1)),
+            actions[:n].T.contiguous(),
+            torch.as_tensor(returns.T.copy(), device=self.device),
+        )
+        self.last_actions = actions[:n].T  # (N, n), for the equivalence tests
+        clip_stacked(grads, a.grad_clip_mode, a.grad_clip)
+        lrs = [annealed_lr(args, self.step_count) for args in self.args]
+        self.optimizer.step(grads, torch.tensor(lrs, dtype=torch.float32, device=self.device))
+        self.step_count += n
+        return n
+
+    # -- evaluations and checkpoints, per run ----------------------------------------------
+    def network(self, i: int) -> dict[str, torch.Tensor]:
+        return {name: p[i].detach().cpu().clone() for name, p in zip(self.names, self.params,
+                                                                     strict=True)}  # fmt: skip
+
+    def evaluate(self) -> list[dict]:
+        """Every run's evaluation of the thesis protocol at this step, as the runtime's
+        `evaluate_network` plays it (its episode seeds, and its actions drawn by
+        torch.multinomial with its generator from the same keys), the runs' episodes on one
+        TorchCatchVectorEnv of N x --eval-episodes games and their networks in one vmapped
+        forward per step; only each run's draws are made on the host, from its probabilities."""
+        start, n, episodes = time.time(), len(self.runs), self.args[0].eval_episodes
+        self.set_progress()
+        seeds, generators = [], []
+        for args in self.args:  # evaluate_network's keys
+            rng = np.random.default_rng([args.seed, EVALUATION_STREAM, self.step_count])
+            seeds += rng.integers(2**31, size=episodes).tolist()
+            generators.append(torch.Generator().manual_seed(int(rng.integers(2**62))))
+        if self.eval_envs is None or self.eval_envs.num_envs != n * episodes:
+            self.eval_envs = TorchCatchVectorEnv(n * episodes, self.device)
+        obs = self.eval_envs.reset(seed=seeds)
+        greedy = torch.tensor([args.eval_greedy for args in self.args], device=self.device)
+        with torch.no_grad():  # (not inference mode: the env's tensors are updated outside it)
+            while True:
+                frames = network_frames(obs.view(n, episodes, *obs.shape[1:]))
+                log_probs, _ = vmap(self.forward)(self.params, frames)
+                probs = log_probs.exp().cpu()
+                drawn = torch.stack([torch.multinomial(probs[i], 1, generator=generator)[:, 0]
+                                     for i, generator in enumerate(generators)])  # fmt: skip
+                actions = torch.where(greedy[:, None], log_probs.argmax(-1), drawn.to(self.device))
+                obs, _, _, ended = self.eval_envs.step(actions.flatten())
+                if ended.any():  # Catch's games all end at their 15th step
+                    break
+        scores = self.eval_envs.final_returns.view(n, episodes).cpu().numpy()
+        seconds = (time.time() - start) / n
+        return [{"global_step": self.step_count, "scores": scores[i].tolist(), "seconds": seconds}
+                for i in range(n)]  # fmt: skip
+
+    def checkpoint(self, i: int, files: RunFiles, wall_time: float) -> None:
+        worker = (self.uniforms.generator(i), NumpyStateView(self.envs, i),
+                  self.envs.stack[i : i + 1].cpu().numpy())  # fmt: skip
+        snapshot = {
+            "model": self.network(i),
+            "optimizer": {"square_avg": [s[i].cpu().clone() for s in self.optimizer.square_avg]},
+            "global_step": self.step_count,
+            "workers": {0: saved_state(worker)},
+            "pending_evaluations": [],
+        }
+        shared = SimpleNamespace(model=self.cpu_model, global_step=lambda: self.step_count)
+        save_checkpoint(files.dir / "checkpoint.pt", shared, self.args[i],
+                        files.wall_offset + wall_time, self.agent.script, snapshot)  # fmt: skip
+
+
+def train_batched(
+    module: ModuleType,
+    runs: list[BatchedRun],
+    device: str = "cpu",
+    should_stop: Callable[[], bool] = lambda: False,
+    log_interval: float = 30.0,
+) -> list[dict]:
+    """Train the runs as one batch to their --total-timesteps, writing each run's folder;
+    returns each run's outcome (for the sweep's table): "done" or "stopped" and its wall time.
+    A stop (should_stop() true) checkpoints every run at its last update."""
+    if device == "cuda":  # fp32 as the scripts compute it: no TF32 convolutions or matmuls
+        torch.backends.cudnn.allow_tf32 = False
+        torch.backends.cuda.matmul.allow_tf32 = False
+    else:  # one core, as one process-backend run uses (and no oversubscribed threads)
+        torch.set_num_threads(1)
+    batch = BatchedA3C(module, runs, device)
+    start, start_step = time.time(), batch.step_count
+    files = [RunFiles(run.args, start_step, batch.wall_offsets[i]) for i, run in enumerate(runs)]
+    a = batch.args[0]
+    eval_mark, checkpoint_mark = (
+        next_mark(start_step, a.eval_interval),
+        next_mark(start_step, a.checkpoint_interval),
+    )
+
+    def evaluate_all() -> None:
+        if all(batch.step_count in run_files.logged for run_files in files):
+            return  # (a resumed run's evaluation of this step was logged before it stopped)
+        for run_files, result in zip(files, batch.evaluate(), strict=True):
+            if batch.step_count not in run_files.logged:
+                run_files.evaluation(result, time.time() - start)
+
+    if start_step == 0:
+        evaluate_all()  # the untrained network's, as every run's first row
+    last_log, last_step = time.time(), start_step
+    stopped = False
+    while batch.step_count < batch.total:
+        if should_stop():
+            stopped = True
+            break
+        batch.update()
+        step = batch.step_count
+        if step >= eval_mark:
+            if step < batch.total:  # the evaluation at T_max is the final one, below
+                evaluate_all()
+            eval_mark = next_mark(step, a.eval_interval)
+        if step >= checkpoint_mark:
+            for i, run_files in enumerate(files):
+                batch.checkpoint(i, run_files, time.time() - start)
+            checkpoint_mark = next_mark(step, a.checkpoint_interval)
+        if time.time() - last_log >= log_interval:
+            sps = (step - last_step) * len(runs) / (time.time() - last_log)
+            print(f"batched: {len(runs)} runs at step {step:,}/{batch.total:,} | "
+                  f"{sps:,.0f} run-steps/s", flush=True)  # fmt: skip
+            last_log, last_step = time.time(), step
+    for i, run_files in enumerate(files):  # every run's last checkpoint, as a run's last
+        batch.checkpoint(i, run_files, time.time() - start)
+    if not stopped:
+        evaluate_all()
+    outcomes = []
+    wall = time.time() - start
+    for run_files in files:
+        step, score = run_files.last_eval or (batch.step_count, float("nan"))
+        label = "last eval" if stopped else "final eval"
+        outcome = "stopped by SIGINT" if stopped else "done"
+        line = (f"{outcome}: {label} {score:.3f} at step {step:,} | batched with "
+                f"{len(runs)} runs | {batch.step_count:,} steps | {run_files.dir}")  # fmt: skip
+        with open(run_files.dir / "stdout.log", "a") as f:
+            f.write(line + "\n")
+        outcomes.append({"outcome": outcome, "wall_time_s": run_files.wall_offset + wall,
+                         "stdout": line})  # fmt: skip
+    return outcomes
+
+
+# ------------------------------------------------------------------------------------------------
+# The sweep's batched backend
+# ------------------------------------------------------------------------------------------------
+def planned_args(module: ModuleType, flags: list[str]) -> Any:
+    """A run's Args as its command line gives them (unresolved), or UsageError in one line."""
+    import contextlib
+    import io
+
+    import tyro
+
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            return tyro.cli(module.Args, args=flags)
+    except SystemExit:
+        lines = [line.strip("│ ") for line in err.getvalue().splitlines() if line.strip("│ ─╭╮╰╯")]
+        raise UsageError(f"the run flags {' '.join(flags)!r} do not parse: "
+                         f"{lines[1] if len(lines) > 1 else 'see --help'}") from None  # fmt: skip
+
+
+def check_batchable(script: str, runs: list[Any], out: Path) -> None:
+    """UsageError (one line) unless the sweep's runs can be one batch: before anything runs."""
+    from a3c_tools import load_script
+
+    module = load_script(script)
+    runs_args = [planned_args(module, run.command(script, out / "runs" / run.run_id)[1:])
+                 for run in runs]  # fmt: skip
+    problem = batch_problem(script, runs_args)
+    if problem is not None:
+        raise UsageError(problem)
+    probe(module, [resolve_run_args(copy.deepcopy(args)) for args in runs_args[:2]])
+
+
+def probe(module: ModuleType, runs_args: list[Any]) -> None:
+    """UsageError (one line) where the network with these flags does not run under vmap (a
+    layer that branches on its data, say): one update of a batch of these runs, before any run
+    folder exists."""
+    runs = [BatchedRun(dataclasses.replace(args, total_timesteps=10**9)) for args in runs_args]
+    try:
+        BatchedA3C(module, runs, "cpu").update()
+    except UsageError:
+        raise
+    except Exception as e:  # functorch's "Batching rule not implemented for ...", and the like
+        detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise UsageError(f"--backend batched cannot batch {module.AGENT.script} with these "
+                         f"flags: its network does not run under vmap ({detail}); use --backend "
+                         "local") from None  # fmt: skip
+
+
+def resolve_run_args(args: Any) -> Any:
+    """A run's Args with the defaults filled in; the batched runs compute in fp32."""
+    from a3c_runtime import resolve_defaults
+
+    args.precision = "fp32"  # (auto: the batched backend's only precision)
+    return resolve_defaults(args)
+
+
+def run_batched(
+    script: str,
+    todo: list[Any],
+    out: Path,
+    record: Callable[[Any, dict], None],
+    should_stop: Callable[[], bool],
+    device: str,
+) -> None:
+    """The sweep's runs `todo` (a3c_tools.sweep.Run) as batches on `device`: the runs that
+    resume from the same step (their checkpoints'; 0 for new ones) are one batch. Each finished
+    run is recorded as the process backend records it; a stopped batch records nothing (its
+    runs resume from their checkpoints on the next start)."""
+    import shutil
+
+    from a3c_tools import load_script
+
+    module = load_script(script)
+    groups: dict[int, list[tuple[Any, BatchedRun]]] = {}
+    for run in todo:
+        run_dir = out / "runs" / run.run_id
+        args = resolve_run_args(planned_args(module, run.command(script, run_dir)[1:]))
+        checkpoint = resumable_checkpoint(module.AGENT, run_dir)
+        if checkpoint is None:  # a partial run that wrote no checkpoint starts again
+            shutil.rmtree(run_dir, ignore_errors=True)
+        start = int(checkpoint["global_step"]) if checkpoint else 0
+        groups.setdefault(start, []).append((run, BatchedRun(args, checkpoint)))
+    for start in sorted(groups):
+        if should_stop():
+            return
+        group = groups[start]
+        where = f"resuming at step {start:,}" if start else "from step 0"
+        print(f"batched: {len(group)} runs on {device}, {where}", flush=True)
+        try:
+            outcomes = train_batched(module, [batch for _, batch in group], device, should_stop)
+        except (WriteFailed, OSError) as e:  # a full disk, say: the checkpoints are whole
+            print(f"error: {e}; each run's last checkpoint survives: start the sweep again to "
+                  "resume them", file=sys.stderr, flush=True)  # fmt: skip
+            raise SystemExit(1) from None
+        for (run, batched), outcome in zip(group, outcomes, strict=True):
+            if outcome["outcome"] != "done":
+                continue  # resumes next time
+            csv_path = Path(batched.args.run_dir) / "evaluations.csv"
+            record(run, {"returncode": 0, "interrupted": False,
+                         "wall_time_s": outcome["wall_time_s"], "stdout_tail": outcome["stdout"],
+                         "stderr_tail": "", "evaluations_csv": csv_path.read_text()})  # fmt: skip
