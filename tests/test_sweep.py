@@ -1014,3 +1014,21 @@ def test_a_results_csv_with_an_unknown_header_is_refused_not_replaced(fake_agent
     assert "nothing was run or replaced" in result.stderr and result.stderr.count("\n") == 1
     assert folder_state(out) == before
     assert starts(fake_agent) == []
+
+
+def test_a_figure_whose_sweep_has_a_run_in_use_is_drawn_and_exits_3(monkeypatch, tmp_path, capsys):
+    """thesis_figures and atari_figures (figure_sweeps.run_sweeps) go on past a sweep that exits
+    3, draw what there is, and exit 3 rather than 0: the figure is not done yet."""
+    from types import SimpleNamespace
+
+    from a3c_tools import figure_sweeps
+
+    codes = iter([0, 3])
+    monkeypatch.setattr(figure_sweeps, "execute", lambda command: (next(codes), ""))
+    lines = [
+        SimpleNamespace(name=name, shared="", folder=tmp_path / name, command=lambda runs: [])
+        for name in ("base", "other")
+    ]
+    drawn = []
+    assert figure_sweeps.run_sweeps(lines, [2], "run", lambda: drawn.append(1)) == 3
+    assert drawn == [1] and "a run in use elsewhere, not yet done: other" in capsys.readouterr().err
