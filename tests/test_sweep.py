@@ -929,6 +929,28 @@ def test_a_run_in_use_elsewhere_is_not_failed_and_runs_once_free(fake_agent, tmp
     ]
 
 
+def test_the_checkpoint_of_a_run_in_use_is_judged_once_it_is_free(
+    fake_agent, tmp_path, monkeypatch
+):
+    """A run resumed by hand with a flag that a resume may change (a longer --total-timesteps)
+    holds a checkpoint the sweep would call another run's: while that run is in use the sweep
+    neither judges nor touches it, and runs the others."""
+    out = tmp_path / "out"
+    busy = out / "runs" / "run-0001"
+    busy.mkdir(parents=True)
+
+    def foreign(script, run, run_dir):
+        return f"{run_dir}/checkpoint.pt is not {run.run_id}'s" if run_dir == busy else None
+
+    monkeypatch.setattr(sweep, "foreign_checkpoint", foreign)
+    with run_folder_held(busy):
+        result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "2", "--sample", LR)
+    assert result.returncode == 3, result.stdout + result.stderr
+    assert [r["run_id"] for r in read_table(out)] == ["run-0000"]
+    result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "2", "--sample", LR)
+    assert result.returncode == 2 and "is not run-0001's" in result.stderr  # free: judged
+
+
 def test_a_run_refused_for_its_folder_in_use_is_in_use_not_failed(fake_agent, tmp_path):
     """A run that another process took between the sweep's look and the run's start exits 2
     with the runtime's "in use" line: in use, not a failure."""

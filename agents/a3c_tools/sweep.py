@@ -1089,6 +1089,8 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
         table = ResultsTable(out / TABLE_NAME, names)
         table.check_columns()
         for run in (run for run in runs if not table.finished(run.run_id)):
+            if run_holder(out / RUNS_DIR / run.run_id) is not None:
+                continue  # in use elsewhere: not touched, its checkpoint judged once it is free
             problem = foreign_checkpoint(args.script, run, out / RUNS_DIR / run.run_id)
             if problem is not None:
                 raise UsageError(problem)
