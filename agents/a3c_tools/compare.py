@@ -68,7 +68,6 @@ import contextlib
 import csv
 import importlib.util
 import io
-import json
 import math
 import shlex
 import sys
@@ -373,7 +372,7 @@ def config_of(line: Line) -> dict | None:
     if line.config is not None:
         return line.config
     path = line.folder / sweep.CONFIG_NAME
-    return json.loads(path.read_text()) if path.is_file() else None
+    return sweep.read_config(path) if path.is_file() else None  # UsageError if not an object
 
 
 def env_of(line: Line) -> str:
