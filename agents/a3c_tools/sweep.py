@@ -59,9 +59,8 @@ A run in use elsewhere (its folder locked by a process training there: a run res
 `--resume OUT/runs/<run_id>/checkpoint.pt`) is not started, not touched and not recorded: the
 sweep says "in use" and picks it up when started again once that process has ended (it resumes
 from the checkpoint the process left, or, finished, is scored as it is; its checkpoint is
-judged, as below, only then). A row that an earlier
-version of this tool recorded as failed for that reason ("... is in use by process ...") is run
-again too.
+judged, as below, only then). A row that an earlier version of this tool recorded as failed
+for that reason ("... is in use by process ...") is run again too.
 
 One sweep per folder: a sweep locks OUT/runs/sweep.lock (which holds its pid) before it reads
 or writes anything else in OUT, and removes it when it ends; another sweep started into the same
