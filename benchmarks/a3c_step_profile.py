@@ -90,8 +90,9 @@ class PhaseClock:
 
 
 def profile(a3c, seconds: float, **flags) -> tuple[int, float, PhaseClock]:
-    """Run the worker loop for `seconds` with the given Args `flags`; returns (env steps, the
-    loop's seconds, the phases' clock)."""
+    """Run the worker loop for `seconds` from its start (building the envs is not timed) and
+    on to the end of its first update if it has made none by then (a loaded host), with the
+    given Args `flags`; returns (env steps, the loop's seconds, the phases' clock)."""
     args = runtime.resolve_defaults(a3c.Args(num_workers=1, **flags))
     args.total_timesteps = 10**12  # the clock ends the loop
     num_actions = runtime.probe_env(a3c.make_env, args.env)
@@ -113,12 +114,26 @@ def profile(a3c, seconds: float, **flags) -> tuple[int, float, PhaseClock]:
     a3c.clip_gradients = clock.timed("clip", a3c.clip_gradients)
     shared.optimizer.step = clock.timed("optimizer", shared.optimizer.step)
     torch.autograd.grad = clock.timed("backward", grad)
-    stop = threading.Timer(seconds, shared.stop.set)
-    stop.start()
+    ended = threading.Event()
+
+    def stop_the_loop() -> None:
+        while not loop_start:  # the window opens when the loop starts
+            if ended.wait(0.01):
+                return
+        if ended.wait(max(0.0, loop_start[0] + seconds - time.perf_counter())):
+            return
+        while shared.global_step() == 0:  # a window that ended before a step: up to the first
+            if ended.wait(0.01):
+                return
+        shared.stop.set()
+
+    stopper = threading.Thread(target=stop_the_loop, daemon=True)
+    stopper.start()
     try:
         a3c.worker(0, shared, args)
     finally:  # the wrappers go: later forwards (forward_after_pause) are not the loop's
-        stop.cancel()
+        ended.set()
+        stopper.join()
         a3c.make_vector_env, a3c.ActorCritic.forward, a3c.clip_gradients = originals
         torch.autograd.grad = grad
     total = time.perf_counter() - loop_start[0]
@@ -174,6 +189,8 @@ def main() -> None:
     except runtime.UsageError as e:
         parser.error(str(e))
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+    if steps == 0:  # the worker ended before its first update: nothing to divide by
+        sys.exit("error: the worker loop ended before its first update; nothing was measured")
     spent = clock.spent
     print(f"{opts.env}, K={opts.envs_per_worker}, {opts.precision}: {steps:,} env steps, "
           f"{steps / total:,.0f} steps/s in one process, {faults / steps:.1f} page faults per "

@@ -1,19 +1,28 @@
 """Mutation sample: what share of mutants that nobody chose does the fast tier catch?
 
-cosmic-ray (a mutation tool for Python) lists every mutant its operators make of the project's
-algorithm code (TARGETS: catch_env/, the seven thesis scripts' network, returns, loss and
-worker, and a3c_runtime's optimizer, clipping, learning-rate schedule, evaluation and seeding);
+cosmic-ray (a mutation tool for Python) lists every mutant its operators make of the targets;
 this script draws a seeded random sample of them, applies each in turn to a scratch copy of the
 tree and runs the fast tier there (`pytest -x -m "not slow"`, the test files of the mutated
 module first, then the others, and the lint and drift tests last, so that "caught by" names a
-behaviour test wherever one catches it). A timeout is never counted as caught.
+behaviour test wherever one catches it). A timeout is never counted as caught. Two samples:
 
-    python tests/mutation_sample.py --out results/mutation_sample   # draw, run, report
+- `--targets algorithm` (the default; seed 53, results/mutation_sample): the algorithm code,
+  catch_env/, the seven thesis scripts' network, returns, loss and worker, and a3c_runtime's
+  optimizer, clipping, learning-rate schedule, evaluation and seeding;
+- `--targets runtime` (seed 69, results/mutation_sample_runtime): the run machinery, every line
+  of agents/a3c_runtime/ (workers and Hogwild, seeding, evaluation, checkpoints, resume, the
+  run folder and log, snapshots, supervision, the flags, train() in a3c.py, replay).
+
+    python tests/mutation_sample.py                        # the first: draw, run, report
+    python tests/mutation_sample.py --targets runtime      # the second
 
 The draw (seed, size, the mutants with their lines) goes to OUT/sample.tsv and each mutant's
 result to OUT/results.tsv as it finishes; run again, the script skips the mutants already in
-results.tsv (resumable). OUT/summary.txt counts them. Equivalent mutants (no behaviour can tell
-them apart) are classified by hand, in OUT/COMMAND.txt. Not collected by pytest.
+results.tsv (resumable). OUT/summary.txt counts them. The draw depends only on the target files
+(the same files, the same draw); a sample.tsv that holds another draw (the files changed since)
+is refused: remove it to draw again. `--draw-only` writes sample.tsv and stops; `--only ID ...`
+runs only those mutants (to time a few). Equivalent mutants (no behaviour can tell them apart)
+are classified by hand, in OUT/COMMAND.txt. Not collected by pytest.
 """
 
 from __future__ import annotations
@@ -21,6 +30,7 @@ from __future__ import annotations
 import argparse
 import ast
 import csv
+import dataclasses
 import random
 import shutil
 import sys
@@ -64,6 +74,45 @@ FIRST = {
 }  # fmt: skip
 LAST = ["tests/test_repo.py", "tests/test_script_drift.py"]  # ruff and the scripts' drift
 
+# the second sample: the run machinery, every line of agents/a3c_runtime/
+MACHINERY = sorted(
+    p.relative_to(ROOT).as_posix() for p in (ROOT / "agents" / "a3c_runtime").glob("*.py")
+)
+FIRST_MACHINERY = {
+    f"agents/a3c_runtime/{module}.py": [f"tests/{t}.py" for t in tests]
+    for module, tests in {
+        "__init__": ["test_runtime_a3c", "test_workers"],
+        "a3c": ["test_runtime_a3c", "test_workers", "test_runtime_supervision"],
+        "checkpoints": ["test_runtime_checkpoints", "test_safe_loading", "test_runtime_resume"],
+        "evaluation": ["test_runtime_evaluation", "test_runtime_a3c"],
+        "flags": ["test_runtime_flags", "test_runtime_a3c"],
+        "hogwild": ["test_runtime_hogwild", "test_workers", "test_runtime_a3c"],
+        "replay": ["test_runtime_replay", "test_batched_actors"],
+        "resume": ["test_runtime_resume", "test_runtime_a3c"],
+        "run_folder": ["test_runtime_run_folder", "test_runtime_a3c"],
+        "run_log": ["test_runtime_run_log", "test_runtime_a3c"],
+        "snapshots": ["test_runtime_snapshots", "test_runtime_a3c"],
+        "supervision": ["test_runtime_supervision", "test_runtime_a3c"],
+    }.items()
+}  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class Targets:
+    files: list[str]
+    first: dict[str, list[str]]  # the test files to run first for a mutated file
+    seed: int
+    out: str
+    whole_files: bool  # every line of every file, or target_lines' choice
+
+
+TARGETS = {
+    "algorithm": Targets([*CATCH_ENV, *SCRIPTS, *RUNTIME], FIRST, 53,
+                         "results/mutation_sample", whole_files=False),
+    "runtime": Targets(MACHINERY, FIRST_MACHINERY, 69,
+                       "results/mutation_sample_runtime", whole_files=True),
+}  # fmt: skip
+
 
 def target_lines(path: str) -> set[int]:
     """The lines of a file whose mutants are drawn from: all of catch_env; in a script every
@@ -103,14 +152,17 @@ def annotation_spans(path: Path) -> list[tuple[tuple[int, int], tuple[int, int]]
     return spans
 
 
-def all_mutants(scratch: Path) -> list[dict]:
-    """Every mutant cosmic-ray's operators make of the TARGETS' lines, in a stable order."""
-    files = [*CATCH_ENV, *SCRIPTS, *RUNTIME]
+def all_mutants(scratch: Path, targets: Targets) -> list[dict]:
+    """Every mutant cosmic-ray's operators make of the targets' lines, in a stable order."""
+    files = targets.files
     with tempfile.TemporaryDirectory() as folder, use_db(Path(folder) / "session.sqlite") as db:
         cosmic_ray_init([scratch / f for f in files], db, {})
         specs = [m for item in db.work_items for m in item.mutations]
     mutants = []
-    lines = {f: target_lines(f) for f in files}
+    if targets.whole_files:
+        lines = {f: set(range(1, len((ROOT / f).read_text().splitlines()) + 1)) for f in files}
+    else:
+        lines = {f: target_lines(f) for f in files}
     notes = {f: annotation_spans(scratch / f) for f in files}
     for spec in specs:
         path = Path(spec.module_path).relative_to(scratch).as_posix()
@@ -150,9 +202,21 @@ def read_rows(path: Path) -> list[dict]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "mutation_sample")
+    parser.add_argument(
+        "--targets",
+        choices=sorted(TARGETS),
+        default="algorithm",
+        help="the algorithm code (default) or the run machinery, agents/a3c_runtime/",
+    )
+    parser.add_argument(
+        "--out", type=Path, default=None, help="default: results/mutation_sample(_runtime)"
+    )
     parser.add_argument("--size", type=int, default=110, help="mutants drawn (default 110)")
-    parser.add_argument("--seed", type=int, default=53, help="the draw's seed (default 53)")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="the draw's seed (default 53; runtime: 69)"
+    )
+    parser.add_argument("--draw-only", action="store_true", help="write sample.tsv and stop")
+    parser.add_argument("--only", nargs="+", metavar="ID", help="run only these mutants")
     parser.add_argument(
         "--timeout",
         type=float,
@@ -161,6 +225,9 @@ def main() -> int:
         "mutant that hangs a test is not caught, and costs no more than that)",
     )
     args = parser.parse_args()
+    targets = TARGETS[args.targets]
+    args.out = args.out or ROOT / targets.out
+    args.seed = targets.seed if args.seed is None else args.seed
     args.out.mkdir(parents=True, exist_ok=True)
 
     scratch = make_scratch()
@@ -170,7 +237,7 @@ def main() -> int:
             print(f"the copy's tests would not import the copy's packages: {shadowing}",
                   file=sys.stderr)  # fmt: skip
             return 2
-        population = all_mutants(scratch)
+        population = all_mutants(scratch, targets)
         drawn = random.Random(args.seed).sample(range(len(population)), args.size)
         sample = [{"id": f"m{k:03d}", **population[i]} for k, i in enumerate(drawn)]
         for mutant in sample:  # the changed line, before and after, for the record
@@ -188,6 +255,12 @@ def main() -> int:
             return 2
         write_rows(sample_path, sample)
         print(f"{len(population)} mutants in the targets; {args.size} drawn with seed {args.seed}")
+        if args.draw_only:
+            return 0
+        unknown = set(args.only or ()) - {m["id"] for m in sample}
+        if unknown:
+            print(f"--only: no such mutant in the draw: {sorted(unknown)}", file=sys.stderr)
+            return 2
         results_path = args.out / "results.tsv"
         done = {r["id"] for r in read_rows(results_path)}
         if "baseline" not in done:  # the unmutated fast tier must pass, or nothing is measured
@@ -204,11 +277,11 @@ def main() -> int:
             p.relative_to(scratch).as_posix() for p in (scratch / "tests").glob("test_*.py")
         )
         for mutant in sample:
-            if mutant["id"] in done:
+            if mutant["id"] in done or (args.only and mutant["id"] not in args.only):
                 continue
             status, failed, seconds = "not-applied", "", 0.0
             if mutant["applied"]:
-                first = FIRST.get(mutant["file"], [])
+                first = targets.first.get(mutant["file"], [])
                 order = [*first, *(t for t in every if t not in first and t not in LAST)]
                 operator = plugins.get_operator(mutant["operator"])()
                 with use_mutation(scratch / mutant["file"], operator, mutant["occurrence"]):

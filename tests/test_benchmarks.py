@@ -148,6 +148,19 @@ def test_a3c_step_profile_reports_every_phase(monkeypatch, capsys):
     assert number(r"at most ([\d,]+) steps/s") > measured
 
 
+def test_a3c_step_profile_whose_window_ends_before_a_step_measures_up_to_one(monkeypatch, capsys):
+    """A window shorter than building the envs and the first update (a loaded host) once gave
+    0 steps and a division by zero: the window opens when the loop starts and the loop goes on
+    to its first update."""
+    result = run(
+        "a3c_step_profile.py", "--seconds", "0.001", monkeypatch=monkeypatch, capsys=capsys
+    )
+    assert result.returncode == 0, result.stderr
+    steps = int(re.search(r": ([\d,]+) env steps", result.stdout)[1].replace(",", ""))
+    assert steps >= 20  # one update of --t-max 20
+    assert len(re.findall(r"^[a-z ]+ +[\d.]+ us/step", result.stdout, re.M)) == 7
+
+
 @pytest.mark.slow
 def test_fault_injection_resumes_runs_without_losing_a_checkpoint(monkeypatch, capsys):
     # one trial, the hardest fault: each fault's own run is tested in test_runtime_a3c.py

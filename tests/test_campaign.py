@@ -417,3 +417,19 @@ def test_a_sigterm_while_a_tool_runs_is_passed_on_to_it(tmp_path):
     code, stdout = figure_sweeps.execute(["-c", tool], capture=True)
     assert (code, stdout) == (130, "stopped cleanly\n")
     assert time.time() - started < 20 and signal.getsignal(signal.SIGTERM) == before
+
+
+def test_a_line_whose_sweep_json_is_not_an_object_is_a_bad_plan(tmp_path):
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "sweep.json").write_text('{"script": "a3c_ff.py", "sam')  # truncated
+    plan = write_plan(
+        tmp_path,
+        '[[item]]\nkind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
+        f'lines = [{{ script = "agents/a3c_ff.py", out = "{bad}" }}]\n',
+    )
+    result = run_main(campaign.main, [str(plan)])
+    assert result.returncode == 2, result.stderr
+    assert (
+        len(result.stderr.splitlines()) == 1 and "is not a sweep's configuration" in result.stderr
+    )

@@ -64,6 +64,32 @@ def test_env_checker_passes_without_warnings(obs_type):
     assert [str(w.message) for w in caught] == []
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="DISPLAY is X11's (Linux)")
+@pytest.mark.parametrize("unwrapped", [True, False], ids=["unwrapped", "made"])
+def test_env_checker_passes_without_a_display(monkeypatch, unwrapped):
+    """On a machine without a display (no DISPLAY, no SDL_VIDEODRIVER: a CI runner, ssh) the
+    checker's "human" env shows nothing and says so once, rather than fail with a traceback."""
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER"):
+        monkeypatch.delenv(name, raising=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make("Catch-v0")
+        check_env(env.unwrapped if unwrapped else env)
+    said = [str(w.message) for w in caught if "unwrapped" not in str(w.message)]
+    assert len(said) == 1 and 'render_mode="human" shows nothing here: no display' in said[0]
+
+
+def test_human_render_without_pygame_shows_nothing_and_says_so(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pygame", None)  # import pygame raises ImportError
+    env = gym.make("Catch-v0", render_mode="human")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env.reset(seed=0)
+        assert env.step(0)[1] == 0.0 and env.render() is None
+    assert len(caught) == 1 and 'pip install "catch-env[human]"' in str(caught[0].message)
+    env.close()
+
+
 def test_spaces_and_action_meanings():
     env = gym.make("Catch-v0")
     assert env.observation_space == gym.spaces.Box(0, 255, (84, 84), np.uint8)

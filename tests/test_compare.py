@@ -486,3 +486,17 @@ def test_the_runs_that_would_decide_a_row_stop_at_max_runs():
         found = re.search(r"about (\d+) runs", words)
         assert found is None or int(found[1]) <= paired.MAX_POWER_RUNS, words
         assert found is not None or "no number of runs per line up to 5000" in words, words
+
+
+def test_from_a_folder_whose_sweep_json_is_not_an_object_exits_2_in_one_line(tmp_path):
+    folders = [tmp_path / "base", tmp_path / "other"]
+    for folder in folders:
+        folder.mkdir()
+        (folder / "results.csv").write_text("run_id,status,score,flags,error\n")
+        (folder / "sweep.json").write_text('{"seed": 1, "samples": []}')
+    (folders[1] / "sweep.json").write_text("[1, 2]")
+    result = run_main(compare.main, ["--from", *map(str, folders)])
+    assert result.returncode == 2
+    assert (
+        len(result.stderr.splitlines()) == 1 and "is not a sweep's configuration" in result.stderr
+    )

@@ -1,6 +1,7 @@
 """a3c_runtime.evaluation: the evaluator process and --evaluate."""
 
 import pickle
+from types import SimpleNamespace
 
 import a3c_runtime as runtime
 import numpy as np
@@ -206,3 +207,44 @@ def test_evaluate_of_a_runs_final_checkpoint_gives_its_final_evaluation(
     assert len(scores) == 8 and f"step {int(final['global_step']):,}: mean score" in out, out
     assert np.mean(scores) == float(final["mean_return"])
     assert np.std(scores) == float(final["std_return"])
+
+
+class SeedRecordingEnv(ActionCountingEnv):
+    """ActionCountingEnv that records the seed of each reset."""
+
+    def __init__(self):
+        self.seeds = []
+
+    def reset(self, seed=None):
+        self.seeds.append(seed)
+        return super().reset(seed)
+
+
+def protocol_args(**flags) -> SimpleNamespace:
+    """What evaluate_network reads of a run's flags."""
+    return SimpleNamespace(**{"seed": 1, "total_timesteps": 10_000, "eval_greedy": False, **flags})
+
+
+def test_the_run_evaluates_with_argmax_pi_under_eval_greedy():
+    """The run's evaluations (evaluate_network, the evaluator's) play argmax pi with
+    --eval-greedy (every action 1, pi 0.6) and sample pi without it."""
+    envs = [ActionCountingEnv() for _ in range(4)]
+    greedy = runtime.evaluate_network(FixedPolicy(), envs, 1000, protocol_args(eval_greedy=True))
+    assert greedy["scores"] == [20.0] * 4
+    sampled = runtime.evaluate_network(FixedPolicy(), envs, 1000, protocol_args())
+    assert 4 * 20 * 0.3 < sum(sampled["scores"]) < 4 * 20 * 0.9
+
+
+def test_each_evaluation_plays_other_episodes_than_the_last():
+    """The episodes' seeds and sampled actions depend on the step: the 20 evaluations of a run
+    are 20 draws of the protocol, not the same episodes 20 times (and the same step gives the
+    same ones again)."""
+    envs = [SeedRecordingEnv() for _ in range(4)]
+
+    def evaluated(step: int) -> tuple[list, list]:
+        scores = runtime.evaluate_network(FixedPolicy(), envs, step, protocol_args())["scores"]
+        return [env.seeds[-1] for env in envs], scores
+
+    first, second, again = evaluated(1000), evaluated(2000), evaluated(1000)
+    assert first == again
+    assert set(first[0]).isdisjoint(second[0]) and first[1] != second[1]

@@ -4,6 +4,7 @@ theta there (and, with one worker, its own state), and a resumed worker gets its
 import io
 import pickle
 import queue
+import time
 
 import numpy as np
 import pytest
@@ -162,3 +163,51 @@ def test_the_main_process_receives_the_marks_events_in_the_order_they_were_sent(
     assert received == [(EVALUATE, 1000), (EVALUATE, 2000), (FINAL, 1)]
     assert marks.receive() is None  # 4000 waits for 3000, which never comes
     assert marks.receive(every=True)[1] == 4000 and marks.receive(every=True) is None
+
+
+def test_a_marks_checkpoint_holds_the_optimizer_statistics_of_its_step(
+    tmp_path, monkeypatch, capsys
+):
+    """A run's checkpoint at a mark holds the optimizer statistics as they were at its step,
+    with theta's, however late the main process writes it: the worker goes on updating them
+    meanwhile (here the main process takes 0.3 s to write each), and a run resumed from it must
+    go on from the statistics of its step. One worker, Catch, in process."""
+    import a3c_runtime.a3c
+    from a3c_runtime.snapshots import StepMarks
+    from conftest import main_exit, read_checkpoint
+
+    at_step = tmp_path / "at_step"
+    at_step.mkdir()
+    reached = StepMarks.reached
+
+    def recorded_reached(self, shared, worker_id, step, state):
+        due = step >= int(self.marks[1])
+        reached(self, shared, worker_id, step, state)
+        if due:  # in the worker, just after its snapshot: the statistics of the mark's step
+            torch.save(shared.optimizer.state_dict(), at_step / f"{step}.pt")
+
+    monkeypatch.setattr(StepMarks, "reached", recorded_reached)  # the worker forks with it
+    written = []
+    save = a3c_runtime.a3c.save_checkpoint
+
+    def late_save(path, *args, **kwargs):
+        time.sleep(0.3)
+        save(path, *args, **kwargs)
+        written.append(read_checkpoint(path))
+
+    monkeypatch.setattr(a3c_runtime.a3c, "save_checkpoint", late_save)
+    flags = ["--num-workers", "1", "--total-timesteps", "300", "--t-max", "20",
+             "--checkpoint-interval", "100", "--eval-interval", "300", "--eval-episodes", "1",
+             "--log-interval", "60", "--run-dir", str(tmp_path / "run")]  # fmt: skip
+    code, err = main_exit(load_script("a3c_ff"), flags, monkeypatch, capsys)
+    assert code == 0, err
+    marks = [c for c in written if c["global_step"] < 300]
+    assert len(marks) == 2  # the first steps at or past 100 and 200
+    for checkpoint in marks:
+        then = torch.load(at_step / f"{checkpoint['global_step']}.pt", weights_only=True)
+        for saved, expected in zip(
+            checkpoint["optimizer"]["square_avg"], then["square_avg"], strict=True
+        ):
+            assert torch.equal(saved, expected)
+    last = written[-1]["optimizer"]["square_avg"]
+    assert not all(torch.equal(a, b) for a, b in zip(last, then["square_avg"], strict=True))

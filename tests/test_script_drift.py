@@ -36,6 +36,9 @@ PAIRS = {
 }
 # the same idea on LPQ and on GLPQ: what it adds to its base is the same in both
 IDEAS = [("a3c_lpq", "a3c_glpq", idea) for idea in ("value_head", "data_init", "growth")]
+# two scripts that add the same definition to their bases, neither derived from the other: the
+# definition is the same in both (WW's spatial softmax is SS's, thesis 6.2.2)
+SIBLINGS = {("a3c_ss", "a3c_ww"): {"SpatialSoftmax"}}
 
 
 def top_level(name: str) -> dict[str, ast.AST]:
@@ -137,3 +140,51 @@ def test_the_drift_check_sees_a_changed_line(tmp_path, monkeypatch):
         line.startswith("n_step_returns: differs")
         for line in drift("a3c_ff", "a3c_ss", PAIRS["a3c_ff", "a3c_ss"])
     )
+
+
+def sibling_drift(first: str, second: str, names: set[str]) -> list[str]:
+    mine, theirs = top_level(first), top_level(second)
+    return [
+        f"{name}: differs between {first}.py and {second}.py"
+        for name in sorted(names)
+        if name not in mine or name not in theirs or ast.dump(mine[name]) != ast.dump(theirs[name])
+    ]
+
+
+@pytest.mark.parametrize(("first", "second"), sorted(SIBLINGS))
+def test_a_definition_two_scripts_copy_is_the_same_in_both(first, second):
+    found = sibling_drift(first, second, SIBLINGS[first, second])
+    assert not found, "\n".join(found)
+
+
+def test_every_definition_two_scripts_add_is_held_by_a_drift_check():
+    """A definition that two scripts add to their bases (a copied layer) is held the same in
+    both by PAIRS (one derived from the other), IDEAS or SIBLINGS: none is copied unwatched."""
+    held = set(PAIRS) | {(f"{a}_{i}", f"{b}_{i}") for a, b, i in IDEAS}
+    added: dict[str, set[str]] = {}
+    for base, derived in PAIRS:
+        for key in top_level(derived).keys() - top_level(base).keys() - FUTURE:
+            added.setdefault(key, set()).add(derived)
+    unwatched = [
+        f"{key}: {first}.py and {second}.py"
+        for key, scripts in sorted(added.items())
+        for i, first in enumerate(sorted(scripts))
+        for second in sorted(scripts)[i + 1 :]
+        if (first, second) not in held
+        and (second, first) not in held
+        and key not in SIBLINGS.get((first, second), SIBLINGS.get((second, first), set()))
+    ]
+    assert not unwatched, "copied without a drift check (add it to SIBLINGS):\n" + "\n".join(
+        unwatched
+    )
+
+
+def test_the_sibling_check_sees_a_changed_line(tmp_path, monkeypatch):
+    source = SCRIPT_PATHS["a3c_ww"].read_text()
+    changed = source.replace("torch.linspace(-0.5, 0.5, size)", "torch.linspace(-1.0, 1.0, size)")
+    assert changed != source
+    (tmp_path / "a3c_ww.py").write_text(changed)
+    monkeypatch.setitem(SCRIPT_PATHS, "a3c_ww", tmp_path / "a3c_ww.py")
+    assert sibling_drift("a3c_ss", "a3c_ww", {"SpatialSoftmax"}) == [
+        "SpatialSoftmax: differs between a3c_ss.py and a3c_ww.py"
+    ]

@@ -12,6 +12,7 @@ import json
 import math
 import multiprocessing
 import multiprocessing.synchronize
+import shutil
 import signal
 import subprocess
 import sys
@@ -47,11 +48,16 @@ FAKE_AGENT = textwrap.dedent(
     parser.add_argument("--num-workers", type=int, default=1)
     parser.add_argument("--fail-above", type=float, default=math.inf)
     parser.add_argument("--hold", default=None, help="wait while this file exists")
+    parser.add_argument("--busy", action="store_true", help="refused: folder in use")
     args = parser.parse_args()
     here = os.path.dirname(os.path.abspath(__file__))
     with open(os.path.join(here, "starts.log"), "a") as f:
         f.write(f"{os.path.basename(args.run_dir)} {os.getpid()}\\n")
     open(os.path.join(args.run_dir, f"attempt-{os.getpid()}"), "w").close()
+    if args.busy:
+        print(f"error: the run folder {args.run_dir} is in use by process 4242 (a run or resume "
+              "training there); wait for it to end or stop it", file=sys.stderr)
+        sys.exit(2)
     stopped = []
     signal.signal(signal.SIGINT, lambda *_: stopped.append("SIGINT"))
     while args.hold and os.path.exists(args.hold) and not stopped:
@@ -851,3 +857,200 @@ def test_the_bars_average_over_the_range_the_sweep_sampled(tmp_path, capsys):
     assert plot_sweep.main([str(table), "-o", out]) == 0
     assert "| 3/3 | 0.300 +- 0.115 (n=3) |" in capsys.readouterr().out
     assert "lr in [1e-05, 0.01] |" in header("--bar-range", "1e-5", "1e-2")  # as given
+
+
+# ------------------------------------------------------------------------------------------------
+# A run in use elsewhere (issue 69, point 4), and an OUT that is not a sweep's (point 5)
+# ------------------------------------------------------------------------------------------------
+HOLD_RUN_FOLDER = """
+import sys
+from pathlib import Path
+from a3c_runtime.run_folder import RunFolder
+folder = RunFolder(Path(sys.argv[1]))  # as a run resumed by hand holds its folder
+print("held", flush=True)
+sys.stdin.read()  # until the test closes stdin
+folder.close()
+"""
+
+
+@contextlib.contextmanager
+def run_folder_held(path: Path):
+    """The run folder locked by another process, as a3c_runtime locks it for a run training
+    there (a run resumed by hand)."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD_RUN_FOLDER, str(path)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        yield holder.pid
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=30)
+
+
+def test_the_sweep_knows_the_runtimes_lock_and_its_refusal(tmp_path):
+    from a3c_runtime import UsageError as RunUsageError
+    from a3c_runtime.run_folder import LOCK_FILE, RunFolder
+
+    assert sweep.RUN_LOCK == LOCK_FILE
+    with run_folder_held(tmp_path) as pid:
+        assert sweep.run_holder(tmp_path) == str(pid)
+        with pytest.raises(RunUsageError, match=sweep.IN_USE_TEXT):
+            RunFolder(tmp_path)
+    assert sweep.run_holder(tmp_path) is None
+    assert sweep.run_holder(tmp_path / "nothing") is None
+    assert not (tmp_path / "nothing").exists()
+
+
+def test_a_run_in_use_elsewhere_is_not_failed_and_runs_once_free(fake_agent, tmp_path):
+    """Started again while one of its runs is resumed by hand, the sweep leaves that run alone,
+    records no row for it, says "in use", exits 3 (not 1), and runs it on the next start."""
+    out = tmp_path / "out"
+    command = [str(fake_agent), "--out", str(out), "--runs", "2", "--sample", LR]
+    busy = out / "runs" / "run-0001"
+    busy.mkdir(parents=True)
+    (busy / "stdout.log").write_text("the run resumed by hand\n")
+    with run_folder_held(busy) as pid:
+        result = run_sweep(*command)
+        assert result.returncode == sweep.IN_USE_EXIT == 3, result.stdout + result.stderr
+        assert f"run-0001 in use: {busy} is held by process {pid}" in result.stdout
+        assert "not done: 1 ok, 0 failed, 1 in use elsewhere (run-0001)" in result.stdout
+        assert [(r["run_id"], r["status"]) for r in read_table(out)] == [("run-0000", "ok")]
+        assert [run_id for run_id, _ in starts(fake_agent)] == ["run-0000"]
+        assert (busy / "stdout.log").read_text() == "the run resumed by hand\n"  # untouched
+    result = run_sweep(*command)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert [(r["run_id"], r["status"]) for r in read_table(out)] == [
+        ("run-0000", "ok"),
+        ("run-0001", "ok"),
+    ]
+
+
+def test_the_checkpoint_of_a_run_in_use_is_judged_once_it_is_free(
+    fake_agent, tmp_path, monkeypatch
+):
+    """A run resumed by hand with a flag that a resume may change (a longer --total-timesteps)
+    holds a checkpoint the sweep would call another run's: while that run is in use the sweep
+    neither judges nor touches it, and runs the others."""
+    out = tmp_path / "out"
+    busy = out / "runs" / "run-0001"
+    busy.mkdir(parents=True)
+
+    def foreign(script, run, run_dir):
+        return f"{run_dir}/checkpoint.pt is not {run.run_id}'s" if run_dir == busy else None
+
+    monkeypatch.setattr(sweep, "foreign_checkpoint", foreign)
+    with run_folder_held(busy):
+        result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "2", "--sample", LR)
+    assert result.returncode == 3, result.stdout + result.stderr
+    assert [r["run_id"] for r in read_table(out)] == ["run-0000"]
+    result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "2", "--sample", LR)
+    assert result.returncode == 2 and "is not run-0001's" in result.stderr  # free: judged
+
+
+def test_a_run_refused_for_its_folder_in_use_is_in_use_not_failed(fake_agent, tmp_path):
+    """A run that another process took between the sweep's look and the run's start exits 2
+    with the runtime's "in use" line: in use, not a failure."""
+    out = tmp_path / "out"
+    result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "1", "--", "--busy")
+    assert result.returncode == 3, result.stdout + result.stderr
+    assert "run-0000 in use" in result.stdout and "failed" not in result.stdout.split("not done")[0]
+    assert not (out / "results.csv").exists()
+
+
+def test_a_row_recorded_failed_for_a_run_in_use_runs_again(fake_agent, tmp_path):
+    """An older sweep recorded a run it found in use as failed, for good; such a row is run
+    again, and the sweep ends ok."""
+    out = tmp_path / "out"
+    command = [str(fake_agent), "--out", str(out), "--runs", "1", "--sample", LR]
+    assert run_sweep(*command).returncode == 0
+    rows = read_table(out)
+    rows[0].update(
+        status="failed",
+        score="",
+        error=f"exit code 2: error: the run folder {out}/runs/run-0000 is in use by process "
+        "4242 (a run or resume training there); wait for it to end or stop it",
+    )
+    with open(out / "results.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    shutil.rmtree(out / "runs" / "run-0000")
+    result = run_sweep(*command)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1 to run" in result.stdout
+    assert [(r["run_id"], r["status"], r["error"]) for r in read_table(out)] == [
+        ("run-0000", "ok", "")
+    ]
+
+
+def folder_state(folder: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(folder)): p.read_bytes() if p.is_file() else b"<folder>"
+        for p in sorted(folder.rglob("*"))
+    }
+
+
+@pytest.mark.parametrize(
+    ("text", "reason"),
+    [
+        ('{"script": "fake_agent.py", "samp', "not JSON"),  # a truncated file
+        ('["fake_agent.py"]', "a JSON list, not an object"),
+        ("", "not JSON"),
+    ],
+)
+def test_a_sweep_json_that_is_not_an_object_refuses_in_one_line(fake_agent, tmp_path, text, reason):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "sweep.json").write_text(text)
+    before = folder_state(out)
+    result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "1", "--sample", LR)
+    assert result.returncode == 2
+    assert result.stderr.startswith(f"error: {out / 'sweep.json'} is not a sweep's configuration")
+    assert reason in result.stderr and result.stderr.count("\n") == 1
+    assert folder_state(out) == before
+    assert starts(fake_agent) == []
+
+
+@pytest.mark.parametrize(
+    "header",
+    [
+        "figure,game,line,seed,final_score,final_step",  # another tool's table
+        "run_id,status,score,flags,error",
+        # a sweep's, with another sampled flag than this sweep's (and no sweep.json to say so)
+        "run_id,status,score,score_all,evaluations,final_step,wall_time_s,seed,grad-clip,flags,"
+        "error",
+    ],
+)
+def test_a_results_csv_with_an_unknown_header_is_refused_not_replaced(fake_agent, tmp_path, header):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "results.csv").write_text(header + "\n" + ",".join(["x"] * header.count(",")) + ",y\n")
+    before = folder_state(out)
+    result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "1", "--sample", LR)
+    assert result.returncode == 2
+    assert result.stderr.startswith(f"error: {out / 'results.csv'}")
+    assert "nothing was run or replaced" in result.stderr and result.stderr.count("\n") == 1
+    assert folder_state(out) == before
+    assert starts(fake_agent) == []
+
+
+def test_a_figure_whose_sweep_has_a_run_in_use_is_drawn_and_exits_3(monkeypatch, tmp_path, capsys):
+    """thesis_figures and atari_figures (figure_sweeps.run_sweeps) go on past a sweep that exits
+    3, draw what there is, and exit 3 rather than 0: the figure is not done yet."""
+    from types import SimpleNamespace
+
+    from a3c_tools import figure_sweeps
+
+    codes = iter([0, 3])
+    monkeypatch.setattr(figure_sweeps, "execute", lambda command: (next(codes), ""))
+    lines = [
+        SimpleNamespace(name=name, shared="", folder=tmp_path / name, command=lambda runs: [])
+        for name in ("base", "other")
+    ]
+    drawn = []
+    assert figure_sweeps.run_sweeps(lines, [2], "run", lambda: drawn.append(1)) == 3
+    assert drawn == [1] and "a run in use elsewhere, not yet done: other" in capsys.readouterr().err

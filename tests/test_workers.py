@@ -6,6 +6,7 @@ float32, it prints no warnings and keeps no autograd history."""
 import math
 import warnings
 
+import a3c_runtime as runtime
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -271,19 +272,23 @@ def test_the_worker_steps_with_the_annealed_rate_and_clipped_gradients(one_threa
     assert unclipped > 20 * 2.0, "Catch's gradients should need the clipping"
 
 
-def test_the_lstm_worker_learns_from_the_states_it_acted_in(monkeypatch, one_thread):
+@pytest.mark.parametrize("truncates", [False, True], ids=["terminal", "time-limit"])
+def test_the_lstm_worker_learns_from_the_states_it_acted_in(monkeypatch, one_thread, truncates):
     """The LSTM's learning pass replays each rollout from its start state, restarting an env's
     state where its next episode starts: its policy at every step is the one the worker acted
     with. Two envs whose episodes end at different steps (every 3 and 5 steps, t_max 4), so
-    that episodes start mid-rollout and at a rollout's start."""
+    that episodes start mid-rollout and at a rollout's start; env 1's end in a terminal state,
+    or in a time limit (truncated), after which acting too starts the next from the zero state."""
     module = load_script("a3c_lstm")
-    env = ScriptedVectorEnv(lengths=[3, 5], truncates=[False, False])
+    env = ScriptedVectorEnv(lengths=[3, 5], truncates=[False, truncates])
     acting, learning = [], []
     forward = module.ActorCritic.forward
 
     def recorded_forward(self, obs, state, episode_starts=None):
         out = forward(self, obs, state, episode_starts)
-        if episode_starts is None:
+        if obs.shape[1] != env.num_envs:  # V(s_last) of a truncated episode
+            pass
+        elif episode_starts is None:
             acting.append(out[0].detach().clone())
         else:
             learning.append((len(acting), out[0].detach().clone()))
@@ -301,6 +306,58 @@ def test_the_lstm_worker_learns_from_the_states_it_acted_in(monkeypatch, one_thr
         acted = torch.cat(acting[start:end])  # (n, K, A)
         torch.testing.assert_close(log_probs[: end - start], acted, rtol=1e-4, atol=1e-5)
         start = end
+
+
+def worker_run(module, worker_id: int, steps_before: dict[int, int], **flags) -> list[dict]:
+    """Worker `worker_id` of a 2-worker run on Catch, the other workers having taken
+    steps_before[w] steps so far; returns each of its updates' global step (of its rollout),
+    learning rate and actions."""
+    args = runtime.resolve_defaults(module.Args(num_workers=2, **flags))
+    torch.manual_seed(0)
+    shared = shared_for(module, args)
+    for other, steps in steps_before.items():
+        shared.steps[other] = steps
+    updates = []
+    optimizer_step, loss = shared.optimizer.step, module.a3c_loss
+
+    def recorded_loss(log_probs, actions, *rest):
+        updates.append({"global_step": shared.global_step(), "actions": actions.clone()})
+        return loss(log_probs, actions, *rest)
+
+    def recorded_step(grads, lr):
+        updates[-1]["lr"] = lr
+        optimizer_step(grads, lr)
+
+    shared.optimizer.step = recorded_step
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(module, "a3c_loss", recorded_loss)
+        module.worker(worker_id, shared, args)
+    return updates
+
+
+@pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm", "a3c_glpq"])  # the workers of their own
+def test_the_workers_of_a_run_draw_their_own_random_streams(name, one_thread):
+    """Workers 0 and 1 of one run (the same --seed, network and flags, learning rate 0) play
+    other games and sample other actions: each seeds its envs and generator by its index."""
+    module = load_script(name)
+    flags = {"total_timesteps": 60, "t_max": 5, "learning_rate": 0.0, "seed": 3}
+    first, second = (worker_run(module, w, {}, **flags) for w in (0, 1))
+    assert len(first) == len(second) == 12
+    assert not torch.equal(torch.cat([u["actions"] for u in first]),
+                           torch.cat([u["actions"] for u in second]))  # fmt: skip
+    seeds = {runtime.process_seed(3, index) for index in range(3)}  # 2 workers, the evaluator
+    assert len(seeds) == 3
+
+
+@pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm", "a3c_glpq"])
+def test_the_learning_rate_anneals_with_the_global_step_of_all_workers(name, one_thread):
+    """With two workers the rate of worker 1's update is eta (1 - T / T_max) at the run's global
+    step T (worker 0's 50 steps included), not at its own count of steps."""
+    module = load_script(name)
+    updates = worker_run(module, 1, {0: 50}, total_timesteps=100, t_max=5, learning_rate=1e-3)
+    assert [u["global_step"] for u in updates] == list(range(50, 100, 5))
+    for update in updates:
+        assert update["lr"] == pytest.approx(1e-3 * (1 - update["global_step"] / 100))
 
 
 def test_the_glpq_worker_follows_the_tau_schedule_and_divides_by_tau(monkeypatch, one_thread):

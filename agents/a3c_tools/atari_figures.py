@@ -49,7 +49,8 @@ so a line whose run folders are gone is still drawn; a run folder with an evalua
 place of its seed's rows (it is the run that goes on).
 
 Exit codes: 0 when done, 1 when some line's every run failed, 2 for bad arguments, a malformed
-atari_figures.toml or a folder holding another configuration (nothing is created), 130 when
+atari_figures.toml or a folder holding another configuration (nothing is created), 3 when a
+run was in use elsewhere (resumed by hand; the same command goes on once it is free), 130 when
 interrupted.
 """
 

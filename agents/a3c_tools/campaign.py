@@ -48,7 +48,6 @@ from __future__ import annotations
 import argparse
 import calendar
 import csv
-import json
 import os
 import platform
 import shlex
@@ -61,6 +60,8 @@ from pathlib import Path
 from a3c_tools import ROOT, run_main
 from a3c_tools import atari_figures as af
 from a3c_tools.figure_sweeps import DataError, Parser, execute
+from a3c_tools.sweep import UsageError as SweepUsageError
+from a3c_tools.sweep import read_config
 
 try:
     import tomllib
@@ -139,8 +140,11 @@ def extend_command(script: str, out: Path, runs: int, where: str, source: Path) 
     config_path = source / "sweep.json"
     if not config_path.is_file():
         raise DataError(f"{where}: {source} has no sweep.json")
-    config = json.loads(config_path.read_text())
-    if Path(script).name != config["script"]:
+    try:
+        config = read_config(config_path)
+    except SweepUsageError as e:
+        raise DataError(f"{where}: {e}") from None
+    if Path(script).name != config.get("script"):
         raise DataError(f"{where}: {source} is a sweep of {config['script']}, not {script}")
     command = ["-m", "a3c_tools.sweep", script, "--out", str(out), "--runs", str(runs)]
     command += ["--seed", str(config["seed"])]

@@ -60,7 +60,8 @@ sets itself (the seed, the budget, the evaluation protocol, a sampled learning r
 too small to evaluate (fewer than 5 evaluations, or evaluations closer than one update of t_max
 x K steps), or an OUT whose sweeps were run with another configuration.
 
-Exit codes: 0 a result, 1 fewer than 3 paired runs (runs failed; no interval), 2 bad input, 130
+Exit codes: 0 a result, 1 fewer than 3 paired runs (runs failed; no interval), 2 bad input, 3 a
+run in use elsewhere (resumed by hand: the same command goes on once it is free), 130
 interrupted.
 """
 
@@ -71,7 +72,6 @@ import contextlib
 import csv
 import importlib.util
 import io
-import json
 import math
 import shlex
 import sys
@@ -327,7 +327,7 @@ def round_size(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
 
 
 def run_lines(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
-    """Sweep both lines to --runs in turns; 0, or the exit code that stopped it (2, 130: a
+    """Sweep both lines to --runs in turns; 0, or the exit code that stopped it (2, 3, 130: a
     sweep's refusal is its one line)."""
     step = round_size(lines, options)
     try:
@@ -339,7 +339,7 @@ def run_lines(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
                 args, fixed = sweep.parse_args([*line.argv[:1], "--runs", str(target),
                                                 *line.argv[1:]])  # fmt: skip
                 code = sweep.sweep(args, fixed)
-                if code in (2, 130):
+                if code in (2, sweep.IN_USE_EXIT, 130):
                     return code
     except KeyboardInterrupt:  # between two sweeps: each sweep handles its own
         return 130
@@ -380,7 +380,7 @@ def config_of(line: Line) -> dict | None:
     if line.config is not None:
         return line.config
     path = line.folder / sweep.CONFIG_NAME
-    return json.loads(path.read_text()) if path.is_file() else None
+    return sweep.read_config(path) if path.is_file() else None  # UsageError if not an object
 
 
 def env_of(line: Line) -> str:

@@ -191,8 +191,9 @@ class Sweep:
 def run_sweeps(sweeps: list[Sweep], rounds: list[int], noun: str, draw: Callable[[], Any]) -> int:
     """Sweep every line to each round's number of runs in turn, then draw. The exit code: 2 or
     130 as a sweep's (a folder holding another configuration; interrupted), which stops it; 1
-    when some line's every run failed; else 0."""
-    failed = []
+    when some line's every run failed; 3 when a run was in use elsewhere (resumed by hand: the
+    same command picks it up once it is free); else 0."""
+    failed, in_use = [], []
     for target in rounds:
         swept: set[Path] = set()
         for sweep in sweeps:
@@ -205,10 +206,16 @@ def run_sweeps(sweeps: list[Sweep], rounds: list[int], noun: str, draw: Callable
                 return code
             if code == 1 and target == rounds[-1]:
                 failed.append(sweep.name)
+            if code == 3:  # sweep.py's IN_USE_EXIT
+                in_use.append(sweep.name)
     draw()
     if failed:
         print(f"every run failed: {', '.join(failed)}", file=sys.stderr)
         return 1
+    if in_use:
+        print(f"a run in use elsewhere, not yet done: {', '.join(in_use)}; the same command "
+              "goes on once it is free", file=sys.stderr)  # fmt: skip
+        return 3
     return 0
 
 

@@ -50,7 +50,17 @@ script) and error. A failed run (non-zero exit, no evaluations, or stopped by a 
 did not send) is recorded with its error (its exit, `error:` line and last meaningful stderr
 line: a tyro error box's message, not its borders) and does not stop the sweep; its logs stay in
 OUT/runs/<run_id>/stdout.log and stderr.log. The table is rewritten to a temporary file, flushed
-to disk and renamed over the old one after each run, so it is always whole.
+to disk and renamed over the old one after each run, so it is always whole. A results.csv whose
+header is not a sweep's (run_id, status, ... seed, the sampled flags, flags, error) refuses the
+sweep in one line, exit 2, rather than be replaced and its rows lost; so does a sweep.json that
+is not a JSON object (truncated, say).
+
+A run in use elsewhere (its folder locked by a process training there: a run resumed by hand,
+`--resume OUT/runs/<run_id>/checkpoint.pt`) is not started, not touched and not recorded: the
+sweep says "in use" and picks it up when started again once that process has ended (it resumes
+from the checkpoint the process left, or, finished, is scored as it is; its checkpoint is
+judged, as below, only then). A row that an earlier version of this tool recorded as failed
+for that reason ("... is in use by process ...") is run again too.
 
 One sweep per folder: a sweep locks OUT/runs/sweep.lock (which holds its pid) before it reads
 or writes anything else in OUT, and removes it when it ends; another sweep started into the same
@@ -95,7 +105,9 @@ Backends.
   Ctrl-C checkpoints every run at its last update; the next start resumes them.
 
 Exit codes: 0 when every run is in the table and at least one is ok, 1 when every run failed,
-2 for bad arguments or a mismatched configuration, 130 when interrupted.
+2 for bad arguments, a mismatched configuration or an OUT whose sweep.json or results.csv is not
+a sweep's, 3 when a run was in use elsewhere (the others are recorded; start the sweep again
+once it is free), 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -149,6 +161,11 @@ RESERVED_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "
 STOP_GRACE_S = 30.0  # how long a run may take to checkpoint and exit after SIGINT
 TAIL_CHARS = 4000
 RAY_MISSING = '--backend ray needs Ray: pip install -e "./agents[ray]" (or pip install ray)'
+RUN_LOCK = "run.lock"  # a3c_runtime.run_folder.LOCK_FILE: held by the process training in a run
+# what a run refused for that lock says (a3c_runtime.run_folder); a row that an older sweep
+# recorded as failed with it is a run that was in use, not a failed one
+IN_USE_TEXT = "is in use by process"
+IN_USE_EXIT = 3
 
 
 class UsageError(Exception):
@@ -479,6 +496,9 @@ def execute_run(
     checkpoint and exit), > 1 to die now (SIGKILL); a Ray cancel raises KeyboardInterrupt here
     and is a stop too. Returns what the sweep needs to score or describe it."""
     run_path = Path(run_dir)
+    holder = run_holder(run_path)
+    if holder is not None:  # resumed by hand, say: neither started nor touched, nor recorded
+        return {"returncode": None, "interrupted": False, "in_use": holder, "wall_time_s": 0.0}
     checkpoint = run_path / "checkpoint.pt"
     if checkpoint.is_file():  # interrupted in an earlier sweep: the run goes on with its flags
         command = [command[0], "--resume", str(checkpoint)]
@@ -488,6 +508,7 @@ def execute_run(
     start = time.time()
     interrupted = False
     with open(run_path / "stdout.log", "ab") as out, open(run_path / "stderr.log", "ab") as err:
+        own_err = err.seek(0, os.SEEK_END)  # the log holds the run's earlier attempts too
         process = subprocess.Popen(
             [sys.executable, *command],
             stdout=out,
@@ -518,14 +539,49 @@ def execute_run(
                 _signal_group(process, signal.SIGKILL)
                 process.wait()
     evaluations = run_path / "evaluations.csv"
-    return {
+    result = {
         "returncode": process.returncode,
         "interrupted": interrupted,
+        "in_use": None,
         "wall_time_s": time.time() - start,
         "stdout_tail": _tail(run_path / "stdout.log"),
         "stderr_tail": _tail(run_path / "stderr.log"),
         "evaluations_csv": evaluations.read_text() if evaluations.exists() else None,
     }
+    if process.returncode == 2 and IN_USE_TEXT in _read_from(run_path / "stderr.log", own_err):
+        # another process took the folder between the check above and this run's start
+        result["in_use"] = run_holder(run_path) or "?"
+    return result
+
+
+def _read_from(path: Path, offset: int) -> str:
+    """What a file holds past offset (what this attempt of a run wrote to its log)."""
+    with open(path, "rb") as f:
+        f.seek(offset)
+        return f.read().decode(errors="replace")
+
+
+def run_holder(run_dir: Path) -> str | None:
+    """The process that holds the run folder's lock (its pid as the lock file says, or '?'),
+    or None when no process does. The lock is a3c_runtime.run_folder's POSIX record lock: it is
+    taken and given back at once here, so that the run started next can take it."""
+    try:
+        import fcntl
+    except ImportError:  # no such locks here: the run itself refuses a held folder
+        return None
+    try:
+        fd = os.open(run_dir / RUN_LOCK, os.O_RDWR)  # never created here
+    except OSError:
+        return None  # no lock file (no run there yet, or it ended): nobody holds it
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+    else:
+        fcntl.lockf(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)  # also gives back a lock taken above
 
 
 def _tail(path: Path) -> str:
@@ -562,8 +618,9 @@ def _prepare_child() -> None:
 
 
 def result_row(run: Run, result: dict) -> dict | None:
-    """The table row of a run that ended, or None when the sweep stopped it (it reruns)."""
-    if result["interrupted"]:
+    """The table row of a run that ended, or None when the sweep stopped it or it was in use
+    elsewhere (either way it runs on the next start)."""
+    if result["interrupted"] or result.get("in_use"):
         return None
     row = {
         "run_id": run.run_id,
@@ -621,7 +678,7 @@ def config_mismatch(out: Path, config: dict) -> str | None:
     path = out / CONFIG_NAME
     if not path.exists():
         return None
-    stored = json.loads(path.read_text())
+    stored = read_config(path)
     differ = [key for key in config if stored.get(key) != config[key]]
     if not differ:
         return None
@@ -630,6 +687,24 @@ def config_mismatch(out: Path, config: dict) -> str | None:
         f"{out} holds a sweep with another configuration ({details}); "
         "use another --out, or the same arguments to resume it"
     )
+
+
+def read_config(path: Path) -> dict:
+    """A sweep.json's configuration; UsageError when it is not a JSON object (a truncated
+    file, another tool's), as nothing then says which sweep the folder holds."""
+    try:
+        stored = json.loads(path.read_bytes())
+    except (OSError, ValueError) as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        reason = e.strerror if isinstance(e, OSError) else f"not JSON: {e}"
+        stored = None
+    else:
+        reason = f"a JSON {type(stored).__name__}, not an object"
+    if not isinstance(stored, dict):
+        raise UsageError(
+            f"{path} is not a sweep's configuration ({reason}); nothing was run: move it away, "
+            "or use another --out"
+        )
+    return stored
 
 
 LOCK_NAME = "sweep.lock"
@@ -647,6 +722,7 @@ def lock_folder(out: Path) -> Iterator[None]:
     except ImportError:
         yield
         return
+    made = [d for d in (out, out / RUNS_DIR) if not d.exists()]
     (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
     path = out / RUNS_DIR / LOCK_NAME
     while True:
@@ -675,6 +751,9 @@ def lock_folder(out: Path) -> Iterator[None]:
         with contextlib.suppress(FileNotFoundError):  # while still locked: a sweep that opened
             os.unlink(path)  # it meanwhile finds it gone (above) and takes a fresh one
         os.close(fd)
+        for folder in reversed(made):  # a refused start leaves no folder it made, if empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 def _lock_holder(fd: int) -> str:
@@ -694,12 +773,44 @@ class ResultsTable:
     def __init__(self, path: Path, sampled_names: list[str]):
         self.path = path
         self.columns = [*FIXED_COLUMNS, *sampled_names, *TRAILING_COLUMNS]
+        self.header: list[str] | None = None  # the file's, None when there is none yet
         self.rows: dict[str, dict] = {}
-        if path.exists():
+        if not path.exists():
+            return
+        try:
             with open(path, newline="") as f:
-                for row in csv.DictReader(f):
-                    if row.get("status") in ("ok", "failed"):
-                        self.rows[row["run_id"]] = row
+                reader = csv.DictReader(f)
+                self.header = reader.fieldnames
+                rows = list(reader)
+        except (OSError, UnicodeDecodeError, csv.Error) as e:
+            raise UsageError(f"{path} cannot be read ({e}); nothing was run") from None
+        head, tail = len(FIXED_COLUMNS), len(TRAILING_COLUMNS)
+        header = self.header or []
+        if self.header is not None and (
+            header[:head] != FIXED_COLUMNS or header[-tail:] != TRAILING_COLUMNS
+        ):
+            shown = ",".join(header)
+            raise UsageError(
+                f"{path} is not a sweep's results table (its header: "
+                f"{shown[:120] + '...' if len(shown) > 120 else shown}; a sweep's is "
+                f"{','.join(FIXED_COLUMNS)},<the sampled flags>,{','.join(TRAILING_COLUMNS)}); "
+                "nothing was run or replaced: move it away, or use another --out"
+            )
+        for row in rows:
+            if row.get("status") == "failed" and IN_USE_TEXT in (row.get("error") or ""):
+                continue  # in use elsewhere when an older sweep ran it: not a failure, run it
+            if row.get("status") in ("ok", "failed"):
+                self.rows[row["run_id"]] = row
+
+    def check_columns(self) -> None:
+        """UsageError when the file's sampled columns are not this sweep's (rewriting it would
+        lose theirs)."""
+        if self.header is not None and self.header != self.columns:
+            raise UsageError(
+                f"{self.path}'s columns are {','.join(self.header)}, not this sweep's "
+                f"{','.join(self.columns)}; nothing was run or replaced: move it away, or use "
+                "another --out"
+            )
 
     def finished(self, run_id: str) -> bool:
         return run_id in self.rows
@@ -859,7 +970,7 @@ def run_ray(
 
 def _copy_back(run_dir: Path, result: dict) -> None:
     """Keep the files of a run that ran on another node: evaluations.csv and the log tails."""
-    if result.get("interrupted"):
+    if result.get("interrupted") or result.get("in_use"):
         return
     run_dir.mkdir(parents=True, exist_ok=True)
     if result["evaluations_csv"] is not None and not (run_dir / "evaluations.csv").exists():
@@ -1000,7 +1111,10 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
             raise UsageError(mismatch)
         # a run folder holding a checkpoint that is not its run's refuses the sweep, as it is
         table = ResultsTable(out / TABLE_NAME, names)
+        table.check_columns()
         for run in (run for run in runs if not table.finished(run.run_id)):
+            if run_holder(out / RUNS_DIR / run.run_id) is not None:
+                continue  # in use elsewhere: not touched, its checkpoint judged once it is free
             problem = foreign_checkpoint(args.script, run, out / RUNS_DIR / run.run_id)
             if problem is not None:
                 raise UsageError(problem)
@@ -1084,9 +1198,19 @@ def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[
         flush=True,
     )
     finished = [0]
+    in_use: list[str] = []
 
     def record(run: Run, result: dict) -> None:
         _copy_back(out / RUNS_DIR / run.run_id, result)
+        if result.get("in_use"):
+            in_use.append(run.run_id)
+            print(
+                f"[-/{len(todo)}] {run.run_id} in use: {out / RUNS_DIR / run.run_id} is held by "
+                f"process {result['in_use']} (a run or resume training there); not started, "
+                "it runs when the sweep is started again once that process has ended",
+                flush=True,
+            )
+            return
         row = result_row(run, result)
         if row is None:
             return
@@ -1112,8 +1236,16 @@ def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[
     if stop.level > 0:
         print(f"interrupted: {finished[0]} runs recorded; start again to finish", flush=True)
         return 130
-    statuses = [table.rows[run.run_id]["status"] for run in runs]
+    statuses = [table.rows[run.run_id]["status"] for run in runs if run.run_id in table.rows]
     ok = statuses.count("ok")
+    if in_use:
+        print(
+            f"not done: {ok} ok, {len(statuses) - ok} failed, {len(in_use)} in use elsewhere "
+            f"({', '.join(in_use)}) -> {out / TABLE_NAME}; start the sweep again once they are "
+            "free",
+            flush=True,
+        )
+        return IN_USE_EXIT
     print(f"done: {ok} ok, {len(statuses) - ok} failed -> {out / TABLE_NAME}", flush=True)
     return 0 if ok else 1
 

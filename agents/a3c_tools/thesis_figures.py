@@ -39,8 +39,9 @@ the first with `same_as`: its runs are that line's, run once, in that line's fol
 figure that shows it plots them (a test checks that both lines' flags parse to the same Args).
 
 Exit codes: 0 when done, 1 when some line's every run failed, 2 for bad arguments (nothing is
-created), a malformed thesis_figures.toml or a sweep folder holding another configuration, 130
-when interrupted.
+created), a malformed thesis_figures.toml or a sweep folder holding another configuration, 3
+when a run was in use elsewhere (resumed by hand; the same command goes on once it is free),
+130 when interrupted.
 """
 
 from __future__ import annotations
