@@ -370,8 +370,8 @@ def test_a_batched_sweep_writes_what_the_process_backend_writes(tmp_path):
             np.mean([float(r["mean_return"]) for r in rows[1:]])
         )
         checkpoint = load_checkpoint(str(run_dir / "checkpoint.pt"), module.AGENT)
-        assert checkpoint["global_step"] == 60 and checkpoint["args"]["seed"] == int(row["seed"])
-        assert set(checkpoint["workers"]) == {0}
+        assert checkpoint.global_step == 60 and checkpoint.args["seed"] == int(row["seed"])
+        assert set(checkpoint.workers) == {0}
         # step 0: the run's initial network (seeded by --seed) and its evaluation seeds
         args = tiny_args(module, seed=int(row["seed"]), eval_episodes=3, total_timesteps=60)
         seed_everything(args.seed)
@@ -416,14 +416,14 @@ def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path):
     resumed = runs(tmp_path / "cut")
     for run in resumed:
         run.checkpoint = resumable_checkpoint(module.AGENT, Path(run.args.run_dir))
-        assert run.checkpoint["global_step"] == 20
+        assert run.checkpoint.global_step == 20
     assert [o["outcome"] for o in train_batched(module, resumed)] == ["done", "done"]
     for i in range(2):
         a, b = tmp_path / "whole" / f"run-{i}", tmp_path / "cut" / f"run-{i}"
         returns = [[r["mean_return"] for r in read_evaluations(run)] for run in (a, b)]
         assert returns[0] == returns[1] and len(returns[0]) == 3
-        model_a = load_checkpoint(str(a / "checkpoint.pt"), module.AGENT)["model"]
-        model_b = load_checkpoint(str(b / "checkpoint.pt"), module.AGENT)["model"]
+        model_a = load_checkpoint(str(a / "checkpoint.pt"), module.AGENT).model
+        model_b = load_checkpoint(str(b / "checkpoint.pt"), module.AGENT).model
         for key in model_a:
             torch.testing.assert_close(model_a[key], model_b[key], rtol=0, atol=0)
 
@@ -535,7 +535,7 @@ def test_a_full_disk_stops_the_batch_with_its_checkpoints_whole(tmp_path, monkey
     module = load_script("a3c_ff")
     for run in ("run-0000", "run-0001"):
         checkpoint = load_checkpoint(str(out / "runs" / run / "checkpoint.pt"), module.AGENT)
-        assert checkpoint["global_step"] == 15
+        assert checkpoint.global_step == 15
     monkeypatch.setattr(batched, "save_checkpoint", save)
     result = batched_sweep(out, "--", *tiny, steps=30)
     assert result.returncode == 0, result.stderr

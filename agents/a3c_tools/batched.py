@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import torch
 from a3c_runtime import (
+    Checkpoint,
     UsageError,
     WriteFailed,
     annealed_lr,
@@ -206,17 +207,17 @@ class BatchedRun:
     """One run of a batch: its resolved Args (run_dir set) and what it resumes from."""
 
     args: Any
-    checkpoint: dict | None = None
+    checkpoint: Checkpoint | None = None
 
 
-def resumable_checkpoint(agent: Any, run_dir: Path) -> dict | None:
+def resumable_checkpoint(agent: Any, run_dir: Path) -> Checkpoint | None:
     """The run folder's checkpoint if it holds the worker's state (an exact resume), else None
     (the run starts again)."""
     path = run_dir / "checkpoint.pt"
     if not path.is_file():
         return None
     checkpoint = load_checkpoint(str(path), agent)
-    return checkpoint if checkpoint.get("workers", {}).get(0) else None
+    return checkpoint if checkpoint.workers.get(0) else None
 
 
 class RunFiles:
@@ -286,22 +287,22 @@ class BatchedA3C:
         self.uniforms = ActionUniforms(self.rngs, self.device)
         self.eval_envs: TorchCatchVectorEnv | None = None
 
-    def restore(self, checkpoints: list[dict]) -> None:
+    def restore(self, checkpoints: list[Checkpoint]) -> None:
         """Every run from its checkpoint (all at the same step): theta, the RMSprop statistics,
         the worker's generator, env and frames."""
-        steps = {int(c["global_step"]) for c in checkpoints}
+        steps = {c.global_step for c in checkpoints}
         assert len(steps) == 1, "a batch resumes from one step"
         self.step_count = steps.pop()
         with torch.no_grad():
             for i, checkpoint in enumerate(checkpoints):
                 for j, name in enumerate(self.names):
-                    self.params[j][i] = checkpoint["model"][name].to(self.device)
-                    square_avg = checkpoint["optimizer"]["square_avg"][j]
+                    self.params[j][i] = checkpoint.model[name].to(self.device)
+                    square_avg = checkpoint.optimizer["square_avg"][j]
                     self.optimizer.square_avg[j][i] = square_avg.to(self.device)
-                rng_state, env_state, _ = checkpoint["workers"][0]
+                rng_state, env_state, _ = checkpoint.workers[0]
                 self.rngs[i].bit_generator.state = rng_state["bit_generator"]
                 self.envs.set_numpy_state(i, arrays_of(env_state["env"]))
-                self.wall_offsets[i] = float(checkpoint["wall_time"])
+                self.wall_offsets[i] = checkpoint.wall_time
 
     def set_progress(self) -> None:
         """GLPQ's tau schedule at this step, as its worker and evaluator set it (T / T_max, the
@@ -576,7 +577,7 @@ def run_batched(
         checkpoint = resumable_checkpoint(module.AGENT, run_dir)
         if checkpoint is None:  # a partial run that wrote no checkpoint starts again
             shutil.rmtree(run_dir, ignore_errors=True)
-        start = int(checkpoint["global_step"]) if checkpoint else 0
+        start = checkpoint.global_step if checkpoint else 0
         groups.setdefault(start, []).append((run, BatchedRun(args, checkpoint)))
     for start in sorted(groups):
         if should_stop():

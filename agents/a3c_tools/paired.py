@@ -130,6 +130,22 @@ def runs_to_decide(
     return int(np.argmax(fits)) if fits.any() else None
 
 
+def decision(expect: str, low: float, high: float, runs: int, margin: float = MARGIN) -> str:
+    """The verdict's word of an interval: "reproduced", "contradicted", "inconclusive", or
+    "no verdict" below MIN_PAIRS pairs (`verdict` says why, and what would decide it)."""
+    if runs < MIN_PAIRS:
+        return "no verdict"
+    if expect in ("better", "worse"):
+        sign = 1 if expect == "better" else -1
+        side_low, side_high = sorted((sign * low, sign * high))
+        if side_low > 0:
+            return "reproduced"
+        return "contradicted" if side_high < 0 else "inconclusive"
+    if low >= -margin and high <= margin:
+        return "reproduced"
+    return "contradicted" if low > margin or high < -margin else "inconclusive"
+
+
 def verdict(
     expect: str,
     effect: float,
@@ -139,25 +155,18 @@ def verdict(
     margin: float = MARGIN,
     confidence: float = CONFIDENCE,
 ) -> str:
-    """The verdict of an interval, and for an inconclusive one the runs per line for POWER at
-    the interval's level (1 - confidence) if the effect and the spread stayed as measured (the
-    spread read back from the interval's half-width); no verdict below MIN_PAIRS pairs."""
-    if runs < MIN_PAIRS:
+    """The verdict of an interval (`decision`), and for an inconclusive one the runs per line
+    for POWER at the interval's level (1 - confidence) if the effect and the spread stayed as
+    measured (the spread read back from the interval's half-width); no verdict below MIN_PAIRS
+    pairs."""
+    word = decision(expect, low, high, runs, margin)
+    if word == "no verdict":
         return f"no verdict: {runs} paired runs, fewer than {MIN_PAIRS} give no useful interval"
-    if expect in ("better", "worse"):
-        sign = 1 if expect == "better" else -1
-        side_low, side_high = sorted((sign * low, sign * high))
-        if side_low > 0:
-            return "reproduced"
-        if side_high < 0:
-            return "contradicted"
-        distance = abs(effect)  # how far the interval's centre is from 0
-    else:
-        if low >= -margin and high <= margin:
-            return "reproduced"
-        if low > margin or high < -margin:
-            return "contradicted"
-        distance = abs(abs(effect) - margin)  # how far the centre is from the margin
+    if word != "inconclusive":
+        return word
+    # how far the interval's centre is from 0 (better, worse) or from the margin (comparable)
+    directional = expect in ("better", "worse")
+    distance = abs(effect) if directional else abs(abs(effect) - margin)
     spread = (high - low) / 2 * math.sqrt(runs) / t_quantile(runs, confidence)
     level = round(1 - confidence, 10)
     needed = runs_for_power(distance, spread, level, POWER)
@@ -210,18 +219,38 @@ def holm(p_values: list[float]) -> list[float]:
 MAX_POWER_RUNS = 5000  # beyond this many runs per line, "more than" is said instead
 
 
+SQRT2 = math.sqrt(2)
+
+
 def power(effect: float, spread: float, runs: int, alpha: float) -> float:
     """The power of the two-sided paired t test at level `alpha` over `runs` pairs, when the
     differences have mean `effect` and standard deviation `spread`: P(|T| > t(1 - alpha/2,
     n - 1)) with T noncentral t (n - 1 degrees of freedom, noncentrality effect sqrt(n) /
     spread; `scipy.stats.nct`)."""
-    from scipy import stats
+    from scipy import integrate, stats
 
     if runs < 2:
         return 0.0
     df, shift = runs - 1, effect * math.sqrt(runs) / spread
     q = stats.t.ppf(1 - alpha / 2, df)
-    return float(stats.nct.sf(q, df, shift) + stats.nct.cdf(-q, df, shift))
+
+    # T = (Z + shift) / (W / sqrt(df)), Z normal, W chi(df): P(|T| > q) integrated over W where
+    # its density is not negligible, with the point where |T| = q at Z = 0 marked for the
+    # quadrature. Not scipy's nct, which gives nan or ~0 far out (a large shift at few degrees
+    # of freedom, or hundreds of degrees of freedom).
+    log_norm = (df / 2 - 1) * math.log(2) + math.lgamma(df / 2)  # chi(df)'s density's
+
+    def given_w(w: float) -> float:  # plain math: scipy's per-call cost, times quad's points
+        if w <= 0:
+            return 0.0
+        scale = q * w / math.sqrt(df)
+        both_tails = 0.5 * (math.erfc((scale - shift) / SQRT2) + math.erfc((scale + shift) / SQRT2))
+        return both_tails * math.exp((df - 1) * math.log(w) - w * w / 2 - log_norm)
+
+    low, high = stats.chi.ppf(1e-15, df), stats.chi.isf(1e-15, df)
+    edge = min(max(shift * math.sqrt(df) / q, low), high)
+    found = integrate.quad(given_w, low, high, points=[edge, math.sqrt(df)], limit=200)[0]
+    return float(min(max(found, 0.0), 1.0))
 
 
 def runs_for_power(effect: float, spread: float, alpha: float, target: float = 0.8) -> int | None:
@@ -235,18 +264,20 @@ def runs_for_power(effect: float, spread: float, alpha: float, target: float = 0
     def enough(n: int) -> bool:
         return power(effect, spread, n, alpha) >= target
 
-    high = 2
-    while not enough(high):  # doubling, then bisection: power grows with n
-        if high >= MAX_POWER_RUNS:
+    # Start at the normal approximation's n, ((z(1 - alpha/2) + z(target)) spread / effect)^2,
+    # then step: power grows with n, and the t test's n is within a few of it, so a handful of
+    # noncentral t evaluations instead of a search's twenty (verdict calls this per row).
+    from scipy import stats
+
+    z = stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(target)
+    n = min(max(2, math.ceil((z * spread / effect) ** 2)), MAX_POWER_RUNS)
+    while n > 2 and enough(n - 1):
+        n -= 1
+    while not enough(n):
+        if n >= MAX_POWER_RUNS:
             return None
-        high = min(2 * high, MAX_POWER_RUNS)
-    low = max(2, high // 2)
-    if enough(low):
-        return low
-    while high - low > 1:
-        mid = (low + high) // 2
-        low, high = (low, mid) if enough(mid) else (mid, high)
-    return high
+        n += 1
+    return n
 
 
 def game_of(env_id: str) -> str:
