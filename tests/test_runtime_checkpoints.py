@@ -3,6 +3,7 @@ bad checkpoint as a one-line UsageError (changed bytes included, before torch re
 unsealed one); converted checkpoints from before a flag or the script name still load."""
 
 import io
+import multiprocessing
 import zipfile
 from pathlib import Path
 
@@ -10,7 +11,6 @@ import a3c_runtime as runtime
 import pytest
 import torch
 from conftest import (
-    FORK,
     SCRIPTS,
     load_script,
     main_exit,
@@ -166,11 +166,11 @@ def test_checkpoints_from_before_conv_layout_hold_the_final_network(name, tmp_pa
 def _save_under_a_file_size_limit(path: Path, limit: int, errors) -> None:
     import resource
 
-    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))  # Python ignores SIGXFSZ
     module = load_script("a3c_ff")
     args = tiny_args(module)
     shared = shared_for(module, args)
     shared.steps[0] = 99
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))  # Python ignores SIGXFSZ
     try:
         runtime.save_checkpoint(path, shared, args, 2.0, script="a3c_ff.py")
     except runtime.WriteFailed as e:
@@ -178,7 +178,9 @@ def _save_under_a_file_size_limit(path: Path, limit: int, errors) -> None:
 
 
 def test_a_failed_checkpoint_write_keeps_the_last_one_and_leaves_no_partial_file(tmp_path):
-    """A real failure: the file-size limit (RLIMIT_FSIZE) below a checkpoint's size."""
+    """A real failure: the file-size limit (RLIMIT_FSIZE) below a checkpoint's size. In a
+    spawned child: a forked one can hang in its first torch op when the parent's threads
+    held a lock at the fork (a test process has run many torch ops by then)."""
     module = load_script("a3c_ff")
     args = tiny_args(module)
     shared = shared_for(module, args)
@@ -186,10 +188,11 @@ def test_a_failed_checkpoint_write_keeps_the_last_one_and_leaves_no_partial_file
     path = tmp_path / "checkpoint.pt"
     runtime.save_checkpoint(path, shared, args, 1.0, script="a3c_ff.py")
     size = path.stat().st_size
-    errors = FORK.SimpleQueue()
-    child = FORK.Process(target=_save_under_a_file_size_limit, args=(path, size // 2, errors))
+    spawn = multiprocessing.get_context("spawn")
+    errors = spawn.SimpleQueue()
+    child = spawn.Process(target=_save_under_a_file_size_limit, args=(path, size // 2, errors))
     child.start()
-    child.join(60)
+    child.join(120)
     assert child.exitcode == 0
     assert errors.get() == f"could not write {path}: File too large"
     assert runtime.load_checkpoint(str(path), module.AGENT).global_step == 42
