@@ -82,7 +82,7 @@ FIRST_MACHINERY = {
     f"agents/a3c_runtime/{module}.py": [f"tests/{t}.py" for t in tests]
     for module, tests in {
         "__init__": ["test_runtime_a3c", "test_workers"],
-        "a3c": ["test_runtime_a3c", "test_workers", "test_runtime_supervision"],
+        "a3c": ["test_runtime_train", "test_workers", "test_runtime_supervision"],
         "checkpoints": ["test_runtime_checkpoints", "test_safe_loading", "test_runtime_resume"],
         "evaluation": ["test_runtime_evaluation", "test_runtime_a3c"],
         "flags": ["test_runtime_flags", "test_runtime_a3c"],
