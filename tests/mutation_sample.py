@@ -81,18 +81,18 @@ MACHINERY = sorted(
 FIRST_MACHINERY = {
     f"agents/a3c_runtime/{module}.py": [f"tests/{t}.py" for t in tests]
     for module, tests in {
-        "__init__": ["test_runtime_a3c", "test_workers"],
-        "a3c": ["test_runtime_a3c", "test_workers", "test_runtime_supervision"],
+        "__init__": ["test_runtime_train", "test_workers"],
+        "a3c": ["test_runtime_train", "test_workers", "test_runtime_supervision"],
         "checkpoints": ["test_runtime_checkpoints", "test_safe_loading", "test_runtime_resume"],
-        "evaluation": ["test_runtime_evaluation", "test_runtime_a3c"],
-        "flags": ["test_runtime_flags", "test_runtime_a3c"],
-        "hogwild": ["test_runtime_hogwild", "test_workers", "test_runtime_a3c"],
+        "evaluation": ["test_runtime_evaluation", "test_runtime_train"],
+        "flags": ["test_runtime_flags", "test_runtime_train"],
+        "hogwild": ["test_runtime_hogwild", "test_workers", "test_runtime_train"],
         "replay": ["test_runtime_replay", "test_batched_actors"],
-        "resume": ["test_runtime_resume", "test_runtime_a3c"],
-        "run_folder": ["test_runtime_run_folder", "test_runtime_a3c"],
-        "run_log": ["test_runtime_run_log", "test_runtime_a3c"],
-        "snapshots": ["test_runtime_snapshots", "test_runtime_a3c"],
-        "supervision": ["test_runtime_supervision", "test_runtime_a3c"],
+        "resume": ["test_runtime_resume", "test_runtime_train"],
+        "run_folder": ["test_runtime_run_folder", "test_runtime_train"],
+        "run_log": ["test_runtime_run_log", "test_runtime_train"],
+        "snapshots": ["test_runtime_snapshots", "test_runtime_train"],
+        "supervision": ["test_runtime_supervision", "test_runtime_train"],
     }.items()
 }  # fmt: skip
 

@@ -64,3 +64,13 @@ def test_the_closing_line_labels_the_last_evaluation_truthfully(outcome, label, 
     line = capsys.readouterr().out
     assert line.startswith(f"{outcome}: {label} 0.140 at step 0 |"), line
     assert "| 44,430 steps |" in line and summary["final_eval_step"] == 0
+
+
+def test_the_progress_line_gives_the_step_its_share_of_t_max_and_the_time_left(tmp_path, capsys):
+    args = SimpleNamespace(total_timesteps=4000, x=1)
+    log = runtime.RunLog(tmp_path, args, wall_offset=0.0)
+    log.progress(2500, 100.0, 1e-3, torch.zeros(len(runtime.Shared.STATS)))
+    log.close()
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("step 2,500/4,000 (62.5%) | SPS 100 | return ")
+    assert line.endswith(f"| ETA {runtime.run_log.format_seconds(15.0)}")  # 1,500 steps at 100/s

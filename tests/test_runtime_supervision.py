@@ -1,6 +1,7 @@
 """a3c_runtime.supervision: a process's failure reaches the main process; SIGTERM ends a
 worker's loop. Whole runs stopped by signals and killed workers: tests/test_runtime_a3c.py."""
 
+import os
 from types import SimpleNamespace
 
 import a3c_runtime as runtime
@@ -18,8 +19,27 @@ def test_run_process_reports_exceptions():
     child.start()
     child.join(30)
     assert child.exitcode == 1
+    assert not errors.empty()  # (a get() would wait for ever on a child that put nothing)
     name, trace = errors.get()
     assert name == "worker 7" and "ZeroDivisionError" in trace
+
+
+def test_a_process_whose_main_process_ended_before_it_started_ends_at_once():
+    """A forked process whose main process is not its parent any more (it died before the
+    child asked the kernel to kill it with it) exits at once, code 1, running nothing; one
+    whose main process is its parent runs."""
+    errors = FORK.SimpleQueue()
+    for main_pid, runs in ((os.getpid(), True), (1, False)):  # pid 1: never the child's parent
+        shared = SimpleNamespace(signalled=False, main_pid=main_pid)
+        child = FORK.Process(
+            target=runtime.run_process, args=("worker 0", errors, shared, lambda: 1 / 0)
+        )
+        child.start()
+        child.join(30)
+        assert child.exitcode == 1
+        assert errors.empty() is not runs, main_pid  # the target ran and failed, or never ran
+        while not errors.empty():
+            errors.get()
 
 
 def _loop_until_signalled(shared, ready) -> None:
