@@ -44,11 +44,10 @@ def replay_activations(
     ...), where it passes the 5% rule (docs/speed.md): with K > 1 envs per worker on Catch, in
     bf16 or fp32. Measured on and off in one run, alternating rounds of 15 s, A3C FF
     (results/replay_measurement): with its input fingerprint, on the 2-core Zen 4 EPYC with
-    native bf16, K = 16 bf16 1.08x and fp32 1.17x; on a 2-core AVX2 EPYC without bf16, shared,
-    K = 16 fp32 1.05x, 1.12x and 1.27x per CPU-second in three runs (its wall clock too noisy to
-    tell). Under 5% elsewhere, so the model is left as it is there: K = 16 bf16-learn 1.04x,
-    K = 1 0.94-1.04x (acting's copies cost about what the update's forward saves), Breakout
-    K = 16 1.04x (the emulator's share of a step is large)."""
+    native bf16, K = 16 bf16 1.08x and fp32 1.17x; on a 2-core AVX2 EPYC without bf16, alone,
+    K = 16 fp32 1.22x. Under 5% elsewhere, so the model is left as it is there: K = 16
+    bf16-learn 1.04x, K = 1 0.94-1.04x (acting's copies cost about what the update's forward
+    saves), Breakout K = 16 1.04x (the emulator's share of a step is large)."""
     from catch_env.wrappers import is_atari
 
     if args.envs_per_worker == 1 or args.precision == "bf16-learn" or is_atari(args.env):
