@@ -173,20 +173,26 @@ def test_progress_counts_a_begun_runs_steps_from_its_checkpoint(line, tmp_path):
     assert "| 1 (50% of their steps) |\n" in result.stdout
 
 
-def test_repeat_runs_run_0_again_and_compares_its_score(line, tmp_path):
+def repeat_plan(line: Path, tmp_path: Path, item: str, title: str, more: str = "") -> Path:
+    """A plan of one repeat item of line's runs into tmp_path/again (`more`: its extra keys)."""
     agent = line.parent / "agents" / "a3c_ff.py"
-    plan = write_plan(
+    return write_plan(
         tmp_path,
         f"""
         [[item]]
-        id = "a0"
-        title = "run 0 again"
+        id = "{item}"
+        title = "{title}"
         kind = "repeat"
         script = "{agent}"
         source = "{line}"
         out = "{tmp_path / "again"}"
+        {more}
         """,
     )
+
+
+def test_repeat_runs_run_0_again_and_compares_its_score(line, tmp_path):
+    plan = repeat_plan(line, tmp_path, "a0", "run 0 again")
     assert run_main(campaign.main, [str(plan)]).returncode == 0
     assert rows(tmp_path / "again")[0]["score"] == rows(line)[0]["score"]
     assert "run 0 again" in (plan.parent / "PROGRESS.md").read_text()
@@ -194,21 +200,7 @@ def test_repeat_runs_run_0_again_and_compares_its_score(line, tmp_path):
 
 
 def test_repeat_of_a_chosen_run_says_whether_it_agrees_within_the_stated_margin(line, tmp_path):
-    agent = line.parent / "agents" / "a3c_ff.py"
-    plan = write_plan(
-        tmp_path,
-        f"""
-        [[item]]
-        id = "a0b"
-        title = "run 1 again"
-        kind = "repeat"
-        script = "{agent}"
-        source = "{line}"
-        out = "{tmp_path / "again"}"
-        run = 1
-        agree_within = 0.05
-        """,
-    )
+    plan = repeat_plan(line, tmp_path, "a0b", "run 1 again", "run = 1\n        agree_within = 0.05")
     assert run_main(campaign.main, [str(plan)]).returncode == 0
     assert rows(tmp_path / "again")[1]["score"] == rows(line)[1]["score"]
     progress = (plan.parent / "PROGRESS.md").read_text()

@@ -8,6 +8,7 @@ held against the thesis script each extends, and an idea built on both LPQ and G
 alike in the two."""
 
 import ast
+from pathlib import Path
 
 import pytest
 from conftest import SCRIPT_PATHS
@@ -129,13 +130,18 @@ def test_every_script_is_held_by_the_drift_check():
     assert set(SCRIPT_PATHS) - derived == {"a3c_ff"}, "a script no drift pair holds"
 
 
+def change_script(name: str, old: str, new: str, tmp_path: Path, monkeypatch) -> None:
+    """SCRIPT_PATHS[name] made a copy of the script with `old` replaced by `new`."""
+    source = SCRIPT_PATHS[name].read_text()
+    changed = source.replace(old, new)
+    assert changed != source
+    (tmp_path / f"{name}.py").write_text(changed)
+    monkeypatch.setitem(SCRIPT_PATHS, name, tmp_path / f"{name}.py")
+
+
 def test_the_drift_check_sees_a_changed_line(tmp_path, monkeypatch):
     """The check itself: a one-token change in a shared function is reported."""
-    source = SCRIPT_PATHS["a3c_ss"].read_text()
-    changed = source.replace("returns[t] = g", "returns[t] = g * 1.0")
-    assert changed != source
-    (tmp_path / "a3c_ss.py").write_text(changed)
-    monkeypatch.setitem(SCRIPT_PATHS, "a3c_ss", tmp_path / "a3c_ss.py")
+    change_script("a3c_ss", "returns[t] = g", "returns[t] = g * 1.0", tmp_path, monkeypatch)
     assert any(
         line.startswith("n_step_returns: differs")
         for line in drift("a3c_ff", "a3c_ss", PAIRS["a3c_ff", "a3c_ss"])
@@ -180,11 +186,8 @@ def test_every_definition_two_scripts_add_is_held_by_a_drift_check():
 
 
 def test_the_sibling_check_sees_a_changed_line(tmp_path, monkeypatch):
-    source = SCRIPT_PATHS["a3c_ww"].read_text()
-    changed = source.replace("torch.linspace(-0.5, 0.5, size)", "torch.linspace(-1.0, 1.0, size)")
-    assert changed != source
-    (tmp_path / "a3c_ww.py").write_text(changed)
-    monkeypatch.setitem(SCRIPT_PATHS, "a3c_ww", tmp_path / "a3c_ww.py")
+    old, new = "torch.linspace(-0.5, 0.5, size)", "torch.linspace(-1.0, 1.0, size)"
+    change_script("a3c_ww", old, new, tmp_path, monkeypatch)
     assert sibling_drift("a3c_ss", "a3c_ww", {"SpatialSoftmax"}) == [
         "SpatialSoftmax: differs between a3c_ss.py and a3c_ww.py"
     ]
