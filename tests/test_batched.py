@@ -4,6 +4,7 @@ the script's own one-worker run with the same seed and flags, action for action 
 for parameter."""
 
 import csv
+import dataclasses
 import errno
 from pathlib import Path
 from types import SimpleNamespace
@@ -178,7 +179,12 @@ def run_args(module, flags: dict, steps: int, seeds_and_rates) -> list:
 
 RUN_FLAGS = [(1, 7e-4), (1001, 3e-3)]  # per-run seeds and learning rates
 UPDATES = 50
-OTHER_NETWORKS = ("a3c_ss", "a3c_ww", "a3c_lpq", "a3c_glpq")
+OTHER_NETWORKS = ("a3c_lws", "a3c_ss", "a3c_ww", "a3c_lpq", "a3c_glpq")
+# LWS as its Figure 6.3 runs ran it, "LWS S" (fixed centroids on a grid: buffers drawn from
+# each run's seed, stacked per run)
+LWS_AS_RUN = {"lws_similarity": "matrix", "lws_padding": "same", "lws_second_layer_maps": 32,
+              "lws_kernel_init": "uniform-sqrt3", "lws_kcps": 4, "lws_centroid_init": "grid",
+              "lws_centroids": "group", "lws_trainable": False}  # fmt: skip
 BATCH_FLAGS = [
     {"t_max": 5},  # rollouts of 5 steps, bootstrapped from V(s_5) twice per episode
     {"t_max": 20, "grad_clip_mode": "global-norm", "activation": "elu"},  # whole episodes
@@ -196,6 +202,8 @@ BATCH_FLAGS = [
         # slow tier, 10 updates
         ("a3c_ff", BATCH_FLAGS[0], UPDATES),
         *((name, BATCH_FLAGS[0], 10) for name in OTHER_NETWORKS),
+        ("a3c_lws", {**BATCH_FLAGS[0], **LWS_AS_RUN}, 10),
+        ("a3c_lws", {**BATCH_FLAGS[0], "lws_trainable": False}, 10),  # centroids U[0,1] per seed
         *(pytest.param("a3c_ff", flags, 10, marks=pytest.mark.slow) for flags in BATCH_FLAGS[1:]),
     ],
 )
@@ -320,11 +328,11 @@ def test_what_the_batched_backend_cannot_batch_is_refused_in_one_line(tmp_path, 
 
 
 def test_another_script_and_a_device_without_batched_are_refused(tmp_path):
-    lws = str(ROOT / "agents" / "a3c_lws.py")
-    result = run_main(sweep.main, [lws, "--out", str(tmp_path / "a"), "--backend", "batched"])
+    lstm = str(ROOT / "agents" / "a3c_lstm.py")
+    result = run_main(sweep.main, [lstm, "--out", str(tmp_path / "a"), "--backend", "batched"])
     assert (
         result.returncode == 2
-        and "a3c_ff.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py, a3c_glpq.py, not a3c_lws.py"
+        and "a3c_ff.py, a3c_lws.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py, a3c_glpq.py, not a3c_lstm.py"
         in result.stderr
     )
     glpq = str(ROOT / "agents" / "a3c_glpq.py")
@@ -337,15 +345,24 @@ def test_another_script_and_a_device_without_batched_are_refused(tmp_path):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
-def test_a_network_that_does_not_run_under_vmap_is_refused_in_one_line():
-    """The probe before a batched sweep: LWS's layers branch on their data (torch.equal), which
-    vmap cannot batch; the refusal names the script and the reason."""
-    module = load_script("a3c_lws")
+def test_a_network_that_does_not_run_under_vmap_is_refused_in_one_line(monkeypatch):
+    """The probe before a batched sweep: a network whose forward branches on its data (here
+    FF's, skipping its work on blank frames), which vmap cannot batch; the refusal names the
+    script and the reason."""
+    module = load_script("a3c_ff")
+
+    class Branching(module.ActorCritic):
+        def forward(self, obs):
+            if obs.float().sum() == 0:
+                return torch.zeros(len(obs), 3), torch.zeros(len(obs))
+            return super().forward(obs)
+
+    monkeypatch.setattr(module, "AGENT", dataclasses.replace(module.AGENT, network=Branching))
     args = [tiny_args(module, seed=seed, learning_rate=lr) for seed, lr in RUN_FLAGS]
     with pytest.raises(
         RunUsageError,
-        match=r"cannot batch a3c_lws.py with these flags: its network "
-        r"does not run under vmap \(Batching rule not implemented for aten::equal",
+        match=r"cannot batch a3c_ff.py with these flags: its network does not run under vmap "
+        r"\(vmap: It looks like you're attempting to use a Tensor in some data-dependent",
     ):
         probe(module, args)
 
@@ -381,10 +398,12 @@ def test_a_batched_sweep_writes_what_the_process_backend_writes(tmp_path):
         assert (run_dir / "stdout.log").read_text().startswith("done: final eval")
 
 
-def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path):
+@pytest.mark.parametrize(("name", "flags"), [("a3c_ff", {}), ("a3c_lws", {"lws_trainable": False})])
+def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path, name, flags):
     """Stopped after 4 updates (Ctrl-C), every run is checkpointed there (step 20, between two
-    marks); resumed, the runs end with the evaluations and weights of a batch never stopped."""
-    module = load_script("a3c_ff")
+    marks); resumed, the runs end with the evaluations and weights of a batch never stopped.
+    (LWS with fixed centroids: each run's own, drawn from its seed, kept in its checkpoint.)"""
+    module = load_script(name)
 
     def runs(folder):
         return [
@@ -398,6 +417,7 @@ def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path):
                     eval_episodes=3,
                     t_max=5,
                     run_dir=str(folder / f"run-{i}"),
+                    **flags,
                 )
             )
             for i, (seed, lr) in enumerate(RUN_FLAGS)
@@ -426,6 +446,11 @@ def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path):
         model_b = load_checkpoint(str(b / "checkpoint.pt"), module.AGENT).model
         for key in model_a:
             torch.testing.assert_close(model_a[key], model_b[key], rtol=0, atol=0)
+        own = module.AGENT.build_network(3, resumed[i].args).state_dict()
+        assert model_a.keys() == own.keys()  # (LWS: the run's fixed centroids, as it drew them)
+        for key in own:
+            if not own[key].requires_grad and key.endswith("centroids"):
+                torch.testing.assert_close(model_a[key], own[key], rtol=0, atol=0)
 
 
 def test_each_runs_evaluation_is_the_runtimes_evaluation_of_its_network():

@@ -425,3 +425,79 @@ def test_a_line_whose_sweep_json_is_not_an_object_is_a_bad_plan(tmp_path):
     assert (
         len(result.stderr.splitlines()) == 1 and "is not a sweep's configuration" in result.stderr
     )
+
+
+def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
+    """--backend batched: a Catch sweep of a script the batched backend takes runs batched (its
+    runs' closing lines say so, SWEEPS.tsv names the device); an LSTM line and an Atari item
+    stay on the process backend; --device without it is refused in one line."""
+    ff, lstm = ROOT / "agents" / "a3c_ff.py", ROOT / "agents" / "a3c_lstm.py"
+    new = tmp_path / "ff"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "s1"
+        title = "a new line"
+        kind = "sweep"
+        runs = 2
+        seed = 7500
+        total_timesteps = 60
+        samples = ["learning-rate=loguniform:1e-4:1e-2"]
+        flags = ["--eval-interval", "30", "--eval-episodes", "3", "--t-max", "5"]
+        lines = [{{ script = "{ff}", out = "{new}" }},
+                 {{ script = "{lstm}", out = "{tmp_path / "lstm"}" }}]
+
+        [[item]]
+        id = "b"
+        title = "Pong"
+        kind = "atari"
+        figure = "fig6.10"
+        game = "Pong"
+        lines = ["vf1.0"]
+        seeds = 3
+        steps = 3000000
+        num_workers = 2
+        out = "{tmp_path / "atari"}"
+        """,
+    )
+    printed = run_main(campaign.main, [str(plan), "--dry-run", "--backend", "batched"]).stdout
+    commands = [shlex.split(line) for line in printed.splitlines()]
+    batched = ["--backend", "batched", "--device", "cpu"]
+    assert [" ".join(batched) in " ".join(c) for c in commands] == [True, False, False, False]
+    refused = run_main(campaign.main, [str(plan), "--device", "cuda"])
+    assert refused.returncode == 2 and "--device needs --backend batched" in refused.stderr
+    ff_line = f'{{ script = "{ff}", out = "{new}" }}'
+    ff_only = write_plan(tmp_path, plan.read_text().split("[[item]]\nid = \"b\"")[0].replace(
+        plan.read_text().split("lines = ")[1].split("\n\n")[0], f"[{ff_line}]"))  # fmt: skip
+    assert run_main(campaign.main, [str(ff_only), "--backend", "batched"]).returncode == 0
+    assert [r["status"] for r in rows(new)] == ["ok", "ok"]
+    for run in ("run-0000", "run-0001"):
+        assert "batched with 2 runs" in (new / "runs" / run / "stdout.log").read_text()
+    logged = (ff_only.parent / "SWEEPS.tsv").read_text().splitlines()[1].split("\t")
+    assert logged[7].startswith("batched on cpu; ")
+
+
+def test_a_line_that_names_the_batched_backend_runs_batched_on_the_campaigns_device(tmp_path):
+    """A study of the backends: the plan's line says backend = "batched"; it runs so on the
+    campaign's --device (cpu by default), its twin on the process backend; a backend the
+    campaign lacks is a bad plan."""
+    ff = ROOT / "agents" / "a3c_ff.py"
+    item = f"""
+        [[item]]
+        id = "g"
+        title = "the backends"
+        kind = "sweep"
+        runs = 2
+        seed = 7900
+        total_timesteps = 100
+        lines = [{{ script = "{ff}", out = "{tmp_path / "local"}" }},
+                 {{ script = "{ff}", out = "{tmp_path / "batched"}", backend = "BACKEND" }}]
+        """
+    plan = write_plan(tmp_path, item.replace("BACKEND", "batched"))
+    for extra, device in (([], "cpu"), (["--backend", "batched", "--device", "cuda"], "cuda")):
+        printed = run_main(campaign.main, [str(plan), "--dry-run", *extra]).stdout.splitlines()
+        wanted = f"--backend batched --device {device} --"
+        assert [wanted in line for line in printed] == [extra != [], True], printed
+    bad = run_main(campaign.main, [str(write_plan(tmp_path, item.replace("BACKEND", "ray")))])
+    assert bad.returncode == 2 and "backend 'ray'; valid: local, batched" in bad.stderr

@@ -381,6 +381,10 @@ NOT_AGENT = "agents/a3c_tools/sweep.py"
         ([FF], "name two agent scripts"),
         ([FF, LPQ, "--from", *COMMITTED], "--from analyses sweeps already run: BASE OTHER"),
         (["--from", COMMITTED[0], "results/sweep_catch/a3c_ff"], "the two sweeps do not pair"),
+        ([FF, LPQ, "--device", "cuda"], "--device needs --backend batched"),
+        ([FF, "agents/a3c_lstm.py", "--backend", "batched"], "not a3c_lstm.py; use --backend "
+         "local"),
+        ([FF, LPQ, "--fast", "--backend", "batched"], "cannot batch --num-workers 2"),
     ],
 )  # fmt: skip
 def test_bad_input_is_one_line_exit_2_and_creates_nothing(stand_in, tmp_path, argv, message):
@@ -499,3 +503,24 @@ def test_from_a_folder_whose_sweep_json_is_not_an_object_exits_2_in_one_line(tmp
     assert (
         len(result.stderr.splitlines()) == 1 and "is not a sweep's configuration" in result.stderr
     )
+
+
+def test_a_batched_comparison_runs_each_line_as_one_program(tmp_path):
+    """--backend batched: each line's 3 runs are one batched program (their closing lines say
+    so), paired by learning rate and seed as on the process backend, and the result is written."""
+    out = tmp_path / "cmp"
+    argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", "750",
+            "--eval-interval", "150", "--eval-episodes", "2", "--backend", "batched",
+            "--out", str(out)]  # fmt: skip
+    done = run_main(compare.main, argv)
+    assert done.returncode == 0, done.stdout + done.stderr
+    base, other = table(out / "base"), table(out / "other")
+    assert sorted(base) == sorted(other) == ["run-0000", "run-0001", "run-0002"]
+    for run_id, row in base.items():
+        assert row["status"] == other[run_id]["status"] == "ok"
+        assert (row["learning-rate"], row["seed"]) == (
+            other[run_id]["learning-rate"], other[run_id]["seed"])  # fmt: skip
+        for side in ("base", "other"):
+            log = (out / side / "runs" / run_id / "stdout.log").read_text()
+            assert "batched with 3 runs" in log
+    assert "the mean over 3 paired runs" in done.stdout

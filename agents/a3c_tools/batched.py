@@ -20,7 +20,7 @@ worker's generator, env and frames, so the script's own --resume continues it ex
 stdout.log with the run's closing line; the sweep writes results.csv. Stopped (Ctrl-C, SIGTERM),
 every run is checkpointed at its last update, and the next start of the sweep resumes them.
 
-What it batches: the scripts of BATCHED_SCRIPTS (FF, SS, WW, LPQ, GLPQ) on Catch-v0
+What it batches: the scripts of BATCHED_SCRIPTS (FF, LWS, SS, WW, LPQ, GLPQ) on Catch-v0
 with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS.
 Anything else is refused in one line before anything runs (`batch_problem`, and `probe`: one
 update of the network under vmap).
@@ -60,8 +60,9 @@ from torch.func import functional_call, grad, stack_module_state, vmap
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
 
 # the scripts whose worker is a3c_ff.py's (GLPQ's adds its tau schedule and loss correction) and
-# whose network vmaps; not yet: LWS (its layers branch on their data), LSTM (recurrent)
-BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_ss.py", "a3c_ww.py", "a3c_lpq.py", "a3c_glpq.py")
+# whose network vmaps; not yet: LSTM (its worker carries a recurrent state across rollouts)
+BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_lws.py", "a3c_ss.py", "a3c_ww.py", "a3c_lpq.py",
+                   "a3c_glpq.py")  # fmt: skip
 # flags that may differ between the runs of one batch; every other flag is the batch's
 PER_RUN_FLAGS = ("seed", "learning_rate", "weight_init", "bias_init", "run_dir", "exp_name",
                  "eval_greedy")  # fmt: skip
@@ -271,11 +272,11 @@ class BatchedA3C:
         self.cpu_model = models[0]  # the evaluations' and checkpoints' network
         self.base = copy.deepcopy(models[0]).to(self.device)
         params, buffers = stack_module_state(models)
-        for name, stacked in buffers.items():  # (SS's and WW's coordinate grids: constants)
-            if not bool((stacked == stacked[:1]).all()):
-                raise UsageError(f"the runs' networks differ in their buffer {name}: not batched")
         self.names = list(params)
         self.params = [params[k].detach().to(self.device) for k in self.names]
+        # buffers stacked too: LWS's fixed centroids are drawn from each run's seed
+        self.buffers = {k: b.to(self.device) for k, b in buffers.items()}
+        self.saved_names = list(models[0].state_dict())  # what a checkpoint's model holds
         self.optimizer = StackedRMSprop(self.params, first.rms_decay, first.optim_eps,
                                         first.rms_init)  # fmt: skip
         self.envs = TorchCatchVectorEnv(n, self.device)
@@ -299,6 +300,9 @@ class BatchedA3C:
                     self.params[j][i] = checkpoint.model[name].to(self.device)
                     square_avg = checkpoint.optimizer["square_avg"][j]
                     self.optimizer.square_avg[j][i] = square_avg.to(self.device)
+                for name, stacked in self.buffers.items():
+                    if name in checkpoint.model:  # (LWS's fixed centroids)
+                        stacked[i] = checkpoint.model[name].to(self.device)
                 rng_state, env_state, _ = checkpoint.workers[0]
                 self.rngs[i].bit_generator.state = rng_state["bit_generator"]
                 self.envs.set_numpy_state(i, arrays_of(env_state["env"]))
@@ -312,12 +316,21 @@ class BatchedA3C:
         scale = getattr(self.base, "policy_loss_scale", None)
         self.loss_scale = scale() if scale is not None else 1.0
 
-    def forward(self, params: list[torch.Tensor], frames: torch.Tensor) -> Any:
-        return functional_call(self.base, dict(zip(self.names, params, strict=True)), (frames,))
+    def forward(self, params: list[torch.Tensor], buffers: dict, frames: torch.Tensor) -> Any:
+        state = {**dict(zip(self.names, params, strict=True)), **buffers}
+        return functional_call(self.base, state, (frames,))
 
-    def loss(self, params, frames, actions, returns):
+    def act(self, frames: torch.Tensor) -> Any:
+        """Every run's forward without gradients. In grad mode, though nothing requires a
+        gradient (so no graph is built): acting shortcuts that compare data, as LWS's cache of
+        its similarity weights (torch.equal), are taken only without it, and vmap cannot batch
+        them; the values are the same."""
+        with torch.enable_grad():
+            return vmap(self.forward)(self.params, self.buffers, frames)
+
+    def loss(self, params, buffers, frames, actions, returns):
         a = self.args[0]
-        log_probs, values = self.forward(params, frames)
+        log_probs, values = self.forward(params, buffers, frames)
         loss, policy_loss, value_loss, entropy = self.module.a3c_loss(
             log_probs, actions, values, returns, a.ent_coef, a.vf_coef, a.value_loss_form
         )
@@ -336,9 +349,8 @@ class BatchedA3C:
         rewards = torch.zeros((self.t_max, n_runs), dtype=torch.float32, device=self.device)
         dones = np.zeros((self.t_max, n_runs), dtype=bool)
         with torch.no_grad():
-            act = vmap(self.forward)
             for t in range(self.t_max):
-                log_probs, _ = act(self.params, network_frames(frames[t][:, None]))
+                log_probs, _ = self.act(network_frames(frames[t][:, None]))
                 actions[t] = sample_actions(log_probs[:, 0], self.uniforms.next())
                 obs, rewards[t], _, ended = envs.step(actions[t])
                 frames[t + 1] = obs
@@ -351,7 +363,7 @@ class BatchedA3C:
             n = t + 1
             bootstrap = np.zeros(n_runs, dtype=np.float32)
             if not dones[n - 1].all():  # V(s_n), as the worker's learning pass computes it
-                bootstrap = act(self.params, network_frames(frames[n][:, None]))[1][:, 0]
+                bootstrap = self.act(network_frames(frames[n][:, None]))[1][:, 0]
                 bootstrap = bootstrap.float().cpu().numpy()
         done_values = np.zeros((n, n_runs), dtype=np.float32)  # (Catch never truncates)
         returns = self.module.n_step_returns(
@@ -359,6 +371,7 @@ class BatchedA3C:
         )
         grads, (policy_loss, value_loss, entropy) = vmap(grad(self.loss, has_aux=True))(
             self.params,
+            self.buffers,
             network_frames(frames[:n].transpose(0, 1)),
             actions[:n].T.contiguous(),
             torch.as_tensor(returns.T.copy(), device=self.device),
@@ -372,8 +385,9 @@ class BatchedA3C:
 
     # -- evaluations and checkpoints, per run ----------------------------------------------
     def network(self, i: int) -> dict[str, torch.Tensor]:
-        return {name: p[i].detach().cpu().clone() for name, p in zip(self.names, self.params,
-                                                                     strict=True)}  # fmt: skip
+        """Run i's state dict: its parameters and persistent buffers (LWS's fixed centroids)."""
+        stacked = {**dict(zip(self.names, self.params, strict=True)), **self.buffers}
+        return {name: stacked[name][i].detach().cpu().clone() for name in self.saved_names}
 
     def evaluate(self) -> list[dict]:
         """Every run's evaluation of the thesis protocol at this step, as the runtime's
@@ -395,7 +409,7 @@ class BatchedA3C:
         with torch.no_grad():  # (not inference mode: the env's tensors are updated outside it)
             while True:
                 frames = network_frames(obs.view(n, episodes, *obs.shape[1:]))
-                log_probs, _ = vmap(self.forward)(self.params, frames)
+                log_probs, _ = self.act(frames)
                 probs = log_probs.exp().cpu()
                 drawn = torch.stack([torch.multinomial(probs[i], 1, generator=generator)[:, 0]
                                      for i, generator in enumerate(generators)])  # fmt: skip

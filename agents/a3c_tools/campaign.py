@@ -39,8 +39,18 @@ CPU-hours are wall time x workers, from the sweeps' results.csv; a run not yet m
 estimated from its line's finished runs, or from the item's `cpu_hours_per_run`, less the share
 of its steps that its checkpoint holds where it has begun (here or on another machine).
 
-Exit codes: 0 when the plan is done, 1 when a sweep failed, 2 for a bad plan (nothing runs),
-130 when interrupted.
+Where the runs run is the command's, not the plan's (but for a sweep item's line that names
+`backend = "batched"`, a study of the backends themselves: it runs batched on --device, cpu by
+default): `--backend batched --device cuda` runs
+each Catch sweep of a script the batched backend takes (a3c_tools.batched.BATCHED_SCRIPTS) as
+one batched program on the GPU, and every other sweep (Atari, LSTM, the future-work scripts) on
+the process backend as before; SWEEPS.tsv names the device of a batched sweep. A line may so
+hold runs of both backends: run i is the same run on either (tests/test_batched.py), but for the
+order of floating-point sums. A batched sweep's runs share one wall clock, so its CPU-hours in
+PROGRESS.md are the batch's wall time per run, not CPU time.
+
+Exit codes: 0 when the plan is done, 1 when a sweep failed, 2 for a bad plan or options
+(nothing runs), 130 when interrupted.
 """
 
 from __future__ import annotations
@@ -48,6 +58,7 @@ from __future__ import annotations
 import argparse
 import calendar
 import csv
+import dataclasses
 import os
 import platform
 import shlex
@@ -182,6 +193,11 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
                        "--total-timesteps", str(int(entry["total_timesteps"]))]  # fmt: skip
             for sample in entry.get("samples", []):
                 command += ["--sample", sample]
+            backend = line.get("backend", "local")  # a study of the backends names them
+            if backend not in ("local", "batched"):
+                raise DataError(f"{where}: backend {backend!r}; valid: local, batched")
+            if backend == "batched":  # its device is the campaign's --device
+                command += ["--backend", "batched", "--device", "cpu"]
             command += ["--", *line.get("flags", []), *entry.get("flags", [])]
             sweeps.append(Sweep(out, int(entry["runs"]), command, 0, out))
     elif kind == "repeat":
@@ -335,6 +351,18 @@ def write_progress(items: list[Item], plan: Path) -> bool:
     return finished
 
 
+def ran_on(command: list[str]) -> str:
+    """SWEEPS.tsv's cpu column: the CPU, or for a batched sweep its device too."""
+    if "--backend" not in command or flag_value(command, "--backend") != "batched":
+        return cpu_model()
+    device = flag_value(command, "--device") or "cpu"
+    if device == "cuda":
+        import torch
+
+        device = f"cuda {torch.cuda.get_device_name()}"
+    return f"batched on {device}; {cpu_model()}"
+
+
 def cpu_model() -> str:
     """The CPU's model name (as lscpu prints it, from /proc/cpuinfo), for the record of where
     each run ran."""
@@ -355,7 +383,7 @@ def log_sweep(plan: Path, item: Item, sweep: Sweep, before: int, started: float)
     stamp = "%Y-%m-%d %H:%M:%S"
     row = [item.id, str(sweep.out), time.strftime(stamp, time.gmtime(started)),
            time.strftime(stamp, time.gmtime()), f"{time.time() - started:.0f}", str(before),
-           str(len(read_rows(sweep.out))), cpu_model(), str(os.cpu_count())]  # fmt: skip
+           str(len(read_rows(sweep.out))), ran_on(sweep.command), str(os.cpu_count())]  # fmt: skip
     lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
     if not lines:
         lines = ["item\tout\tstarted_utc\tended_utc\twall_s\truns_before\truns_after\tcpu\tcores\n"]
@@ -402,7 +430,51 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("plan", type=Path, help="the plan (e.g. results/campaign/plan.toml)")
     parser.add_argument("--status", action="store_true", help="write and print the progress only")
     parser.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
-    return parser.parse_args(argv)
+    parser.add_argument(
+        "--backend",
+        choices=["local", "batched"],
+        default="local",
+        help="batched: the Catch sweeps of the scripts the batched backend takes as one program "
+        "on --device; every other sweep on the process backend (default local: all of them)",
+    )
+    parser.add_argument("--device", choices=["cpu", "cuda"], default=None,
+                        help="with --backend batched: cpu or cuda (default cpu)")  # fmt: skip
+    options = parser.parse_args(argv)
+    if options.device is not None and options.backend != "batched":
+        parser.error("--device needs --backend batched")
+    options.device = options.device or "cpu"
+    return options
+
+
+def batchable(sweep: Sweep) -> bool:
+    """Whether a sweep is a Catch sweep of a script that the batched backend takes."""
+    from a3c_tools.batched import BATCHED_SCRIPTS
+
+    command = sweep.command
+    if command[:2] != ["-m", "a3c_tools.sweep"] or Path(command[2]).name not in BATCHED_SCRIPTS:
+        return False
+    own = command[: command.index("--")]
+    return "--backend" not in own and flag_value(command, "--env") in (None, "Catch-v0")
+
+
+def on_backend(items: list[Item], backend: str, device: str) -> list[Item]:
+    """The items with their batchable sweeps on the batched backend (`--backend batched`), and
+    the lines whose plan names the batched backend on `device`."""
+    where = ["--backend", "batched", "--device", device]
+    moved = []
+    for item in items:
+        sweeps = []
+        for sweep in item.sweeps:
+            command = sweep.command
+            if flag_value(command, "--backend") == "batched":  # the plan's: on --device
+                at = command.index("--device")
+                command = [*command[: at + 1], device, *command[at + 2 :]]
+            elif backend == "batched" and batchable(sweep):
+                cut = command.index("--")
+                command = [*command[:cut], *where, *command[cut:]]
+            sweeps.append(dataclasses.replace(sweep, command=command))
+        moved.append(dataclasses.replace(item, sweeps=sweeps))
+    return moved
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -410,10 +482,17 @@ def main(argv: list[str] | None = None) -> int:
     options.plan = options.plan.resolve()
     os.chdir(ROOT)  # the plan's folders are the repository's
     try:
-        items = load_plan(options.plan)
+        items = on_backend(load_plan(options.plan), options.backend, options.device)
     except DataError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    if options.device == "cuda" and not options.dry_run:
+        import torch
+
+        if not torch.cuda.is_available():
+            print("error: --device cuda: torch sees no CUDA device here; use --device cpu",
+                  file=sys.stderr)  # fmt: skip
+            return 2
     if options.dry_run:
         for item in items:
             for sweep in item.sweeps:

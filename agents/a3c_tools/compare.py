@@ -25,7 +25,9 @@ chapter 8's setting: 2 workers x 16 envs (the fast setting) and 1,000,000 steps;
 --lr-range default every run has its script's default learning rate (chapter 8's design: the
 pairs differ by run seed alone). The two sweeps take turns in rounds of as many runs as run at
 once (cores // workers per run locally; all of them on Ray), so that a stopped comparison has
-its pairs. --backend ray [--address ...] runs them on a Ray cluster, as the sweep does.
+its pairs. --backend ray [--address ...] runs them on a Ray cluster, as the sweep does;
+--backend batched [--device cuda] runs each line's runs as one batched program (one worker a
+run; both lines are checked to be batchable before either runs).
 
 Looking twice: a comparison that was inconclusive and is then extended (a larger --runs) is
 judged again; two looks at 95% each would find an effect that is not there more often than 1 in
@@ -288,6 +290,8 @@ def planned_lines(options: argparse.Namespace) -> tuple[Line, Line]:
         for sample in samples:
             argv += ["--sample", sample]
         argv += ["--backend", options.backend]
+        if options.backend == "batched":
+            argv += ["--device", options.device]
         for flag, value in (("--address", options.address), ("--cpus", options.cpus),
                             ("--max-concurrent", options.max_concurrent)):  # fmt: skip
             if value is not None:
@@ -298,6 +302,8 @@ def planned_lines(options: argparse.Namespace) -> tuple[Line, Line]:
         mismatch = sweep.config_mismatch(out / side, config)
         if mismatch:
             raise UsageError(mismatch)
+        if options.backend == "batched":  # both lines checked before either runs
+            sweep.check_batched(sweep_args, sweep.plan_runs(config, options.runs), out / side)
         lines.append(Line(side, label(script, flags), out / side, argv, config))
     if options.backend == "ray" and importlib.util.find_spec("ray") is None:
         raise UsageError(sweep.RAY_MISSING)
@@ -320,7 +326,7 @@ def complete(line: Line, runs: int) -> bool:
 
 def round_size(lines: tuple[Line, Line], options: argparse.Namespace) -> int:
     """How many runs of a line run at once: a round of each line in turn."""
-    if options.backend == "ray":
+    if options.backend in ("ray", "batched"):  # (batched: a line's runs are one program)
         return options.runs
     workers = max(sweep.plan_runs(line.config, 1)[0].workers for line in lines)
     return max(1, (options.cpus or sweep.cpu_count()) // workers)
@@ -523,8 +529,8 @@ def lr_range_or_default(text: str) -> tuple[float, float] | str:
 
 
 RUN_OPTIONS = ("runs", "steps", "fast", "lr_range", "seed", "base_flags", "other_flags",
-               "eval_interval", "eval_episodes", "num_workers", "backend", "address", "cpus",
-               "max_concurrent")  # fmt: skip
+               "eval_interval", "eval_episodes", "num_workers", "backend", "device", "address",
+               "cpus", "max_concurrent")  # fmt: skip
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -607,7 +613,15 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         default=None,
         help="workers per run (default 1; 2 with --fast; the thesis ran 12)",
     )
-    parser.add_argument("--backend", choices=["local", "ray"], default=None)
+    parser.add_argument(
+        "--backend",
+        choices=["local", "ray", "batched"],
+        default=None,
+        help="the sweeps' backend (default local; batched: each line's runs as one program on "
+        "--device, one worker a run)",
+    )
+    parser.add_argument("--device", choices=["cpu", "cuda"], default=None,
+                        help="with --backend batched: cpu or cuda (default cpu)")  # fmt: skip
     parser.add_argument("--address", default=None, help="with --backend ray: a running cluster")
     parser.add_argument("--cpus", type=positive_int, default=None, help="passed to the sweeps")
     parser.add_argument("--max-concurrent", type=positive_int, default=None,
@@ -645,6 +659,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     options.backend = options.backend or "local"
     if options.address and options.backend != "ray":
         parser.error("--address needs --backend ray")
+    if options.device is not None and options.backend != "batched":
+        parser.error("--device needs --backend batched")
+    options.device = options.device or "cpu"
     return options
 
 

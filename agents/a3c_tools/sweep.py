@@ -99,10 +99,10 @@ Backends.
 - batched (`--backend batched`, `--device cpu|cuda`): the runs as one batched program on one
   device (a3c_tools.batched): run i is the script's own one-worker run with its seed and flags
   (tests/test_batched.py), its folder gets what a run writes (evaluations.csv, checkpoint.pt,
-  stdout.log). It runs a3c_ff.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and a3c_glpq.py on
-  Catch-v0 with one worker; the runs may differ in their seed, learning rate, weight and bias
-  init; anything else it cannot batch is refused in one line (exit 2) before anything runs.
-  Ctrl-C checkpoints every run at its last update; the next start resumes them.
+  stdout.log). It runs a3c_ff.py, a3c_lws.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and
+  a3c_glpq.py on Catch-v0 with one worker; the runs may differ in their seed, learning rate,
+  weight and bias init; anything else it cannot batch is refused in one line (exit 2) before
+  anything runs. Ctrl-C checkpoints every run at its last update; the next start resumes them.
 
 Exit codes: 0 when every run is in the table and at least one is ok, 1 when every run failed,
 2 for bad arguments, a mismatched configuration or an OUT whose sweep.json or results.csv is not
@@ -1027,7 +1027,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         choices=["local", "ray", "batched"],
         default="local",
         help="local: a process per run (default); ray: a Ray task per run; batched: the runs "
-        "as one program on --device (FF, SS, WW, LPQ, GLPQ on Catch-v0, one worker per run)",
+        "as one program on --device (FF, LWS, SS, WW, LPQ, GLPQ on Catch-v0, one worker per run)",
     )
     parser.add_argument(
         "--device",
