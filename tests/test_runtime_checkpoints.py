@@ -4,6 +4,7 @@ unsealed one); converted checkpoints from before a flag or the script name still
 
 import io
 import multiprocessing
+import sys
 import zipfile
 from pathlib import Path
 
@@ -332,6 +333,30 @@ def test_the_closing_hint_of_a_run_whose_folder_was_removed_says_so(ff_checkpoin
     assert "no checkpoint was written" not in hint, hint
     assert f"the run folder {run_dir} was removed during the run, with the checkpoints" in hint
     assert "start the run again: python " in hint
+
+
+@pytest.mark.parametrize(
+    ("argv0", "shown"), [("agents/a3c_ff.py", "agents/a3c_ff.py"), ("-c", "agents/a3c_ff.py"),
+                         ("/elsewhere/a3c_ff.py", "/elsewhere/a3c_ff.py")]
+)  # fmt: skip
+def test_the_closing_hint_starts_the_run_again_with_its_own_command(
+    tmp_path, monkeypatch, argv0, shown
+):
+    """With no checkpoint, the command offered is the run's own: its script once (as it was
+    called, or agents/<script> when it was not called by name), then every flag it was given;
+    a --run-dir it named is removed first, so the new attempt does not mix with the dead one."""
+    from a3c_runtime.a3c import resume_hint
+
+    agent = load_script("a3c_ff").AGENT
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    monkeypatch.setattr(sys, "argv", [argv0, "--seed", "3", "--run-dir", str(run_dir)])
+    hint = resume_hint(agent, run_dir)
+    again = f"python {shown} --seed 3 --run-dir {run_dir}"
+    assert hint == f"no checkpoint was written in {run_dir}; start the run again: rm -r -- " \
+        f"{run_dir} && {again}"  # fmt: skip
+    monkeypatch.setattr(sys, "argv", [argv0, "--seed", "3"])
+    assert resume_hint(agent, run_dir).endswith(f"start the run again: python {shown} --seed 3")
 
 
 @pytest.mark.parametrize("mode", ["--resume", "--evaluate"])
