@@ -4,6 +4,7 @@ import pickle
 from types import SimpleNamespace
 
 import a3c_runtime as runtime
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -248,3 +249,22 @@ def test_each_evaluation_plays_other_episodes_than_the_last():
     first, second, again = evaluated(1000), evaluated(2000), evaluated(1000)
     assert first == again
     assert set(first[0]).isdisjoint(second[0]) and first[1] != second[1]
+
+
+@pytest.mark.filterwarnings("ignore:.*Overwriting existing videos")  # (envs 2 and 3 of every)
+def test_with_a_video_folder_the_first_evaluation_env_records_or_with_every_each(tmp_path):
+    """--capture-video: the final evaluation's first episode is recorded (its first env wraps
+    RecordVideo), the others not; --evaluate's `every` records each env's under its own name."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module, eval_episodes=3)
+    first = runtime.make_eval_envs(module.AGENT, args, str(tmp_path / "v"), prefix="final")
+    every = runtime.make_eval_envs(module.AGENT, args, str(tmp_path / "w"), every=True)
+    plain = runtime.make_eval_envs(module.AGENT, args, None)
+    try:
+        assert [isinstance(e, gym.wrappers.RecordVideo) for e in first] == [True, False, False]
+        assert first[0].name_prefix == "final"
+        assert [e.name_prefix for e in every] == ["rl-video-1", "rl-video-2", "rl-video-3"]
+        assert not any(isinstance(e, gym.wrappers.RecordVideo) for e in plain)
+    finally:
+        for env in (*first, *every, *plain):
+            env.close()
