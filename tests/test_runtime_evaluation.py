@@ -268,3 +268,27 @@ def test_with_a_video_folder_the_first_evaluation_env_records_or_with_every_each
     finally:
         for env in (*first, *every, *plain):
             env.close()
+
+
+def test_evaluate_with_capture_video_records_each_episode_beside_the_checkpoint(
+    tmp_path, monkeypatch, capsys
+):
+    """--evaluate CKPT --capture-video: every episode recorded, each under its own name, in
+    videos-evaluate/ of the checkpoint's folder (the envs' video folder is what is checked: the
+    recording itself is the slow tier's)."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="a3c_ff.py")
+    asked, make = [], runtime.evaluation.make_eval_envs
+
+    def make_eval_envs(agent, protocol, video_dir, prefix="rl-video", every=False):
+        asked.append((video_dir, prefix, every))
+        return make(agent, protocol, None)
+
+    monkeypatch.setattr(runtime.evaluation, "make_eval_envs", make_eval_envs)
+    argv = ["--evaluate", str(path), "--capture-video", "--eval-episodes", "2"]
+    code, err = main_exit(module, argv, monkeypatch, capsys)
+    assert code == 0, err
+    assert asked == [(str(tmp_path / "run" / "videos-evaluate"), "episode", True)]
