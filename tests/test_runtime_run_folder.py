@@ -74,6 +74,34 @@ def test_a_folder_without_write_permission_exits_2(tmp_path, monkeypatch, capsys
     assert list(locked.iterdir()) == []
 
 
+def test_a_folder_that_cannot_be_written_or_entered_is_refused_even_as_root(
+    tmp_path, monkeypatch, capsys
+):
+    """Root writes into any folder, so the test above is skipped there: here the folder's
+    permissions are what os.access reports, writable but not enterable, then the reverse; both
+    are refused in one line (exit 2), as a folder without write permission is."""
+    access = os.access
+    for lacking in (os.X_OK, os.W_OK):
+        monkeypatch.setattr(
+            os,
+            "access",
+            lambda path, mode, lacking=lacking: not mode & lacking and access(path, mode),
+        )
+        argv = [
+            "--runs-root",
+            str(tmp_path / "runs"),
+            "--total-timesteps",
+            "50",
+            "--num-workers",
+            "1",
+            "--eval-episodes",
+            "1",
+        ]  # (a run let through ends soon)
+        code, err = main_exit(load_script("a3c_ff"), argv, monkeypatch, capsys)
+        assert code == 2 and "cannot write into the run folder" in err and err.count("\n") == 1
+        monkeypatch.setattr(os, "access", access)
+
+
 def test_close_removes_the_lock_file_and_a_folder_it_created_empty(tmp_path):
     kept = RunFolder(tmp_path)  # an existing folder: kept
     assert (tmp_path / "run.lock").read_text() == f"{os.getpid()}\n"

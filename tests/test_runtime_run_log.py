@@ -74,3 +74,37 @@ def test_the_progress_line_gives_the_step_its_share_of_t_max_and_the_time_left(t
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert line.startswith("step 2,500/4,000 (62.5%) | SPS 100 | return ")
     assert line.endswith(f"| ETA {runtime.run_log.format_seconds(15.0)}")  # 1,500 steps at 100/s
+
+
+def test_the_progress_line_gives_the_mean_return_of_the_episodes_ended_in_its_interval(
+    tmp_path, capsys
+):
+    """4 episodes ended since the last line, returns summing to 2.0 over 60 steps: the line and
+    TensorBoard say return 0.500 and length 15."""
+    args = SimpleNamespace(total_timesteps=4000, x=1)
+    log = runtime.RunLog(tmp_path, args, wall_offset=0.0)
+    logged = {}
+    log.scalars = lambda values, step: logged.update(values)
+    stats = dict.fromkeys(runtime.Shared.STATS, 0.0)
+    stats.update(episodes=4, return_sum=2.0, length_sum=60, updates=2, entropy=2.0)
+    log.progress(2500, 100.0, 1e-3, torch.tensor([stats[k] for k in runtime.Shared.STATS]))
+    log.close()
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "| return 0.500 |" in line, line
+    assert logged["charts/episodic_return"] == 0.5 and logged["charts/episodic_length"] == 15
+    assert logged["losses/entropy"] == 1.0
+
+
+def test_a_resumed_runs_closing_line_gives_this_parts_time_beside_the_runs(tmp_path, capsys):
+    """A resumed run's wall time is its own clock, the earlier parts included; this part's time
+    is the time since this process started it."""
+    from a3c_runtime.a3c import summarize
+
+    log = runtime.RunLog(tmp_path, SimpleNamespace(total_timesteps=10**6), wall_offset=100.0)
+    log.start -= 30.0  # this part began 30 s ago
+    log.close()
+    capsys.readouterr()
+    summary = summarize("done", 1000.0, SimpleNamespace(global_step=lambda: 10), log, tmp_path)
+    assert summary["part_time_s"] == pytest.approx(30.0, abs=2.0)
+    assert summary["wall_time_s"] == pytest.approx(130.0, abs=2.0)
+    assert "wall time 2m10s (this part 0m30s, its evaluations" in capsys.readouterr().out

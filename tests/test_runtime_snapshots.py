@@ -211,3 +211,15 @@ def test_a_marks_checkpoint_holds_the_optimizer_statistics_of_its_step(
             assert torch.equal(saved, expected)
     last = written[-1]["optimizer"]["square_avg"]
     assert not all(torch.equal(a, b) for a, b in zip(last, then["square_avg"], strict=True))
+
+
+def test_a_saved_worker_state_is_a_copy_of_its_arrays_at_that_moment():
+    """A snapshot goes to the main process after the worker has moved on: its frames must be
+    those of its step, not the buffer the worker keeps writing."""
+    frames = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    tensor = torch.arange(4.0)
+    saved = saved_state((frames, tensor))
+    frames[:] = 0
+    tensor[:] = -1
+    np.testing.assert_array_equal(saved[0].numpy(), np.arange(12).reshape(3, 4))
+    torch.testing.assert_close(saved[1], torch.arange(4.0))
