@@ -509,8 +509,8 @@ def test_a_batched_comparison_runs_each_line_as_one_program(tmp_path):
     """--backend batched: each line's 3 runs are one batched program (their closing lines say
     so), paired by learning rate and seed as on the process backend, and the result is written."""
     out = tmp_path / "cmp"
-    argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", "750",
-            "--eval-interval", "150", "--eval-episodes", "2", "--backend", "batched",
+    argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", "150",
+            "--eval-interval", "30", "--eval-episodes", "2", "--backend", "batched",
             "--out", str(out)]  # fmt: skip
     done = run_main(compare.main, argv)
     assert done.returncode == 0, done.stdout + done.stderr
