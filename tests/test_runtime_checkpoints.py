@@ -7,6 +7,7 @@ import multiprocessing
 import sys
 import zipfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import a3c_runtime as runtime
 import pytest
@@ -380,3 +381,26 @@ def test_a_folder_for_a_checkpoint_names_the_checkpoint_in_it(
     # nothing created: no lock file in the folder or beside it
     assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["x"]
     assert sorted(p.name for p in run.iterdir()) == ["checkpoint.pt"]
+
+
+def test_a_checkpoint_of_another_network_names_its_first_four_missing_keys():
+    module = load_script("a3c_ff")
+    model = module.AGENT.build_network(3, tiny_args(module))
+    names = list(model.state_dict())
+    for kept, shown in ((names[:-4], names[-4:]), (names[:-5], names[-5:-1])):
+        checkpoint = SimpleNamespace(model={k: model.state_dict()[k] for k in kept})
+        with pytest.raises(runtime.UsageError) as raised:
+            runtime.checkpoints.load_network(model, checkpoint, "c.pt")
+        more = " ..." if len(names) - len(kept) > 4 else ""
+        assert str(raised.value).endswith(f"missing: {', '.join(shown)}{more}"), raised.value
+
+
+def test_a_fields_type_is_checked_against_its_annotation_through_annotated():
+    """tyro's Annotated[T, ...] flags: the value is checked against T, not the metadata."""
+    import typing
+
+    of_type = runtime.checkpoints.of_type
+    hint = typing.Annotated[int, "a tyro note"]
+    assert of_type(3, hint) and not of_type("3", hint) and not of_type(3.5, hint)
+    choice = typing.Annotated[typing.Literal["fp32", "auto"], "note"]
+    assert of_type("auto", choice) and not of_type("bf16", choice)

@@ -108,3 +108,17 @@ def test_a_resumed_runs_closing_line_gives_this_parts_time_beside_the_runs(tmp_p
     assert summary["part_time_s"] == pytest.approx(30.0, abs=2.0)
     assert summary["wall_time_s"] == pytest.approx(130.0, abs=2.0)
     assert "wall time 2m10s (this part 0m30s, its evaluations" in capsys.readouterr().out
+
+
+def test_rows_after_a_checkpoints_step_are_dropped_and_counted(tmp_path, capsys):
+    csv_path = tmp_path / "evaluations.csv"
+    rows = "".join(f"{step},1.0,0.5,0.1,5\n" for step in (0, 100, 200, 300))
+    csv_path.write_text("global_step,wall_time_s,mean_return,std_return,episodes\n" + rows)
+    runtime.run_log.drop_rows_after(csv_path, 100)
+    assert [line.split(",")[0] for line in csv_path.read_text().split()] == [
+        "global_step", "0", "100"]  # fmt: skip
+    assert capsys.readouterr().out == (
+        "note: evaluations.csv: 2 evaluation(s) logged after the checkpoint's step 100 dropped\n"
+    )
+    runtime.run_log.drop_rows_after(csv_path, 100)  # nothing after it: nothing said
+    assert capsys.readouterr().out == ""

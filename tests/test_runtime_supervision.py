@@ -61,3 +61,20 @@ def test_sigterm_ends_a_processs_loop_cleanly():
     child.join(30)
     assert child.exitcode == 0 and errors.empty()
     assert not shared.signalled  # the flag is the child's own
+
+
+def test_an_evaluator_that_dies_in_a_finished_runs_last_evaluations_is_a_failure():
+    """The run is finished and its evaluator, taking the evaluations it was handed, dies
+    without a word (killed, say): the run fails, naming it, rather than ending "done" with
+    evaluations missing. A worker that reached T_max (exit 0) is no failure."""
+    import threading
+
+    shared = SimpleNamespace(signalled=False, main_pid=os.getpid(), stop=threading.Event())
+    supervisor = runtime.supervision.Supervisor(
+        shared, {"worker 0": (lambda: None,), "evaluator": (lambda: os._exit(3),)}
+    )
+    try:
+        supervisor.stop(finished=True)
+    finally:
+        supervisor.restore_signal_handlers()
+    assert supervisor.failures == ["evaluator exited with code 3"], supervisor.failures

@@ -59,3 +59,51 @@ def test_a_signal_stops_the_run_at_once_with_its_checkpoint_and_no_final_evaluat
     steps = [line.split(",")[0] for line in (run_dir / "evaluations.csv").read_text().split()]
     assert steps[1:] == ["0"], steps  # the step-0 evaluation only: no final one
     assert f"survives; resume: python a3c_ff.py --resume {run_dir / 'checkpoint.pt'}" in out
+
+
+def test_a_resumed_runs_steps_per_second_count_this_parts_steps_only(tmp_path, monkeypatch, capsys):
+    """Resumed at step 1,000,000 for a few hundred more: the SPS the run reports counts the
+    steps it took, not the checkpoint's (which would make it some 10^5 steps/s)."""
+    import a3c_runtime as runtime
+    from a3c_runtime import a3c
+    from conftest import shared_for, tiny_args
+
+    module = load_script("a3c_ff")
+    start = 1_000_000
+    args = tiny_args(module, total_timesteps=start + 300, eval_interval=10**8, eval_episodes=1)
+    shared = shared_for(module, args)
+    shared.base_step[0] = start
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    runtime.save_checkpoint(path, shared, args, 1.0, script="a3c_ff.py")
+    seen = {}
+    summarize = a3c.summarize
+
+    def recorded(outcome, sps, shared, log, run_dir):
+        seen.update(sps=sps, steps=shared.global_step() - start, seconds=time.time() - log.start)
+        return summarize(outcome, sps, shared, log, run_dir)
+
+    monkeypatch.setattr(a3c, "summarize", recorded)
+    code, err = main_exit(module, ["--resume", str(path)], monkeypatch, capsys)
+    assert code == 0, err
+    assert seen["steps"] >= 300
+    # at most this part's steps over its time from the first step on (not from its start)
+    assert 0 < seen["sps"] < 10 * seen["steps"] / seen["seconds"], seen
+
+
+def test_a_flag_given_before_resume_applies_to_the_resumed_run(tmp_path, monkeypatch, capsys):
+    """`--total-timesteps N --resume CKPT`: the flag counts wherever it stands on the command
+    line; the run goes on to the new T_max."""
+    import a3c_runtime as runtime
+    from conftest import shared_for, tiny_args
+
+    module = load_script("a3c_ff")
+    args = tiny_args(module, total_timesteps=100, eval_interval=10**8, eval_episodes=1)
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="a3c_ff.py")
+    argv = ["--total-timesteps", "200", "--resume", str(path)]
+    code, err = main_exit(module, argv, monkeypatch, capsys)
+    assert code == 0, err
+    checkpoint = read_checkpoint(path)
+    assert checkpoint["global_step"] >= 200 and checkpoint["args"]["total_timesteps"] == 200
