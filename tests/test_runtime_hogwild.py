@@ -8,7 +8,7 @@ import a3c_runtime as runtime
 import numpy as np
 import pytest
 import torch
-from conftest import FORK
+from conftest import FORK, load_script, tiny_args
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -129,3 +129,27 @@ def test_keep_running_until_stopped_or_signalled():
     shared.signalled = False
     shared.stop.set()
     assert not shared.keep_running()
+
+
+@pytest.mark.parametrize(("optimizer", "copies"), [("rmsprop", 2), ("adam", 3)])
+def test_no_room_in_shared_memory_names_the_size_the_network_and_its_statistics_need(
+    monkeypatch, optimizer, copies
+):
+    """The refusal's size is theta and the optimizer's statistics: (copies) x the network's
+    bytes, in MiB (the slow tier makes the failure real, with a file size limit)."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module, optimizer=optimizer)
+    model = module.AGENT.build_network(3, args)
+    bytes_ = sum(t.numel() * t.element_size() for t in model.state_dict().values())
+
+    def full(*_):
+        raise RuntimeError("No space left on device")
+
+    monkeypatch.setattr(model, "share_memory", full)
+    with pytest.raises(runtime.UsageError) as raised:
+        runtime.Shared(model, args, FORK)
+    size = copies * bytes_ / 2**20
+    assert str(raised.value).startswith(
+        f"cannot put the network and its optimizer statistics ({size:.1f} MiB) in shared "
+        "memory: No space left on device; free space in /dev/shm"
+    ), raised.value

@@ -107,3 +107,35 @@ def test_a_flag_given_before_resume_applies_to_the_resumed_run(tmp_path, monkeyp
     assert code == 0, err
     checkpoint = read_checkpoint(path)
     assert checkpoint["global_step"] >= 200 and checkpoint["args"]["total_timesteps"] == 200
+
+
+def test_an_evaluator_falling_behind_is_announced_once(tmp_path, monkeypatch, capsys):
+    """An evaluator slower than the training (here its first evaluation takes 4 s, while the
+    run hands it 9 more within about a second): the console says once that it is behind, and
+    every evaluation is taken all the same."""
+    import a3c_runtime as runtime
+
+    evaluate, calls = runtime.evaluation.evaluate_network, []
+
+    def slow_at_first(*args, **kwargs):
+        if not calls:
+            time.sleep(4.0)
+        calls.append(1)
+        return evaluate(*args, **kwargs)
+
+    # (patched before the evaluator is forked: the evaluator's)
+    monkeypatch.setattr(runtime.evaluation, "evaluate_network", slow_at_first)
+    run_dir = tmp_path / "run"
+    flags = ["--num-workers", "1", "--total-timesteps", "100", "--eval-interval", "10",
+             "--eval-episodes", "1", "--log-interval", "60", "--run-dir", str(run_dir)]  # fmt: skip
+    code, _ = main_exit(load_script("a3c_ff"), flags, monkeypatch, capsys, keep_out=True)
+    out = capsys.readouterr().out
+    assert code == 0
+    notes = [line for line in out.splitlines() if line.startswith("note: the evaluator is")]
+    assert len(notes) == 1, out
+    assert notes[0].endswith("each is taken all the same")
+    rows = (run_dir / "evaluations.csv").read_text().split()[1:]
+    steps = [int(line.split(",")[0]) for line in rows]
+    # step 0, one at each update that passes a mark of 10, 20, ..., 90, the final one
+    assert steps[0] == 0 and steps == sorted(set(steps)) and steps[-1] >= 100, steps
+    assert len(steps) >= 8, steps
