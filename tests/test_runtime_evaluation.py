@@ -1,6 +1,7 @@
 """a3c_runtime.evaluation: the evaluator process and --evaluate."""
 
 import pickle
+import warnings
 from types import SimpleNamespace
 
 import a3c_runtime as runtime
@@ -251,14 +252,16 @@ def test_each_evaluation_plays_other_episodes_than_the_last():
     assert set(first[0]).isdisjoint(second[0]) and first[1] != second[1]
 
 
-@pytest.mark.filterwarnings("ignore:.*Overwriting existing videos")  # (envs 2 and 3 of every)
 def test_with_a_video_folder_the_first_evaluation_env_records_or_with_every_each(tmp_path):
     """--capture-video: the final evaluation's first episode is recorded (its first env wraps
-    RecordVideo), the others not; --evaluate's `every` records each env's under its own name."""
+    RecordVideo), the others not; --evaluate's `every` records each env's under its own name,
+    in one folder, with no warning that a recorder's folder exists (each has its own names)."""
     module = load_script("a3c_ff")
     args = tiny_args(module, eval_episodes=3)
     first = runtime.make_eval_envs(module.AGENT, args, str(tmp_path / "v"), prefix="final")
-    every = runtime.make_eval_envs(module.AGENT, args, str(tmp_path / "w"), every=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        every = runtime.make_eval_envs(module.AGENT, args, str(tmp_path / "w"), every=True)
     plain = runtime.make_eval_envs(module.AGENT, args, None)
     try:
         assert [isinstance(e, gym.wrappers.RecordVideo) for e in first] == [True, False, False]

@@ -9,6 +9,7 @@ import os
 import pickle
 import queue
 import time
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -84,10 +85,12 @@ def make_eval_envs(
     for i in range(args.eval_episodes):
         if video_dir and (i == 0 or every):
             env = agent.make_env(args.env, render_mode="rgb_array")
-            env = gym.wrappers.RecordVideo(
-                env, video_dir, episode_trigger=lambda _: True,
-                name_prefix=f"{prefix}-{i + 1}" if every else prefix,
-            )  # fmt: skip
+            with warnings.catch_warnings():  # one folder for many recorders, each its own name
+                warnings.filterwarnings("ignore", message=".*Overwriting existing videos")
+                env = gym.wrappers.RecordVideo(
+                    env, video_dir, episode_trigger=lambda _: True,
+                    name_prefix=f"{prefix}-{i + 1}" if every else prefix,
+                )  # fmt: skip
         else:
             env = agent.make_env(args.env)
         envs.append(env)
