@@ -51,6 +51,27 @@ BAD_FLAGS = [
 ]
 
 
+def test_the_memory_check_counts_every_workers_every_envs_frames(monkeypatch):
+    """(t_max + 1) x K stacked frames per worker, and per env its stack and the vector env's
+    frames, times the workers (before the command-line refusals below, which a wrong bound
+    would let through to a run of millions of envs): 3 workers x 1,000 envs at --t-max 5 is
+    refused where 1 MB is available, with the bytes it needs; 1 x 1 fits."""
+    from a3c_runtime.flags import check_memory
+
+    import catch_env.catch as catch
+
+    monkeypatch.setattr(catch, "available_memory", lambda: 10**6)
+    per_env = (4 * 6 + 4 + catch.VECTOR_FRAMES_PER_ENV) * 84 * 84
+    with pytest.raises(runtime.UsageError) as raised:
+        check_memory(3, 1000, 5)
+    needed = catch.format_bytes(3 * 1000 * per_env)
+    assert str(raised.value).startswith(
+        f"--envs-per-worker 1,000 x --num-workers 3 needs at least {needed} (the rollout buffers"
+    ), raised.value
+    check_memory(1, 1, 5)  # (per_env bytes: under 1 MB)
+    assert per_env < 10**6
+
+
 @pytest.mark.parametrize(("flags", "message"), BAD_FLAGS, ids=lambda v: " ".join(v)[:24])
 def test_bad_flags_exit_2_with_one_line_and_create_nothing(
     flags, message, tmp_path, monkeypatch, capsys
@@ -161,23 +182,3 @@ def test_help_into_a_closed_pipe_ends_quietly():
 
     result = run_into_a_closed_pipe([sys.executable, str(SCRIPT_PATHS["a3c_ff"]), "--help"])
     assert result.stderr == "" and result.returncode == 1, result.stderr
-
-
-def test_the_memory_check_counts_every_workers_every_envs_frames(monkeypatch):
-    """(t_max + 1) x K stacked frames per worker, and per env its stack and the vector env's
-    frames, times the workers: 3 workers x 1,000 envs at --t-max 5 is refused where 1 MB is
-    available, with the bytes it needs; 1 x 1 fits."""
-    from a3c_runtime.flags import check_memory
-
-    import catch_env.catch as catch
-
-    monkeypatch.setattr(catch, "available_memory", lambda: 10**6)
-    per_env = (4 * 6 + 4 + catch.VECTOR_FRAMES_PER_ENV) * 84 * 84
-    with pytest.raises(runtime.UsageError) as raised:
-        check_memory(3, 1000, 5)
-    needed = catch.format_bytes(3 * 1000 * per_env)
-    assert str(raised.value).startswith(
-        f"--envs-per-worker 1,000 x --num-workers 3 needs at least {needed} (the rollout buffers"
-    ), raised.value
-    check_memory(1, 1, 5)  # (per_env bytes: under 1 MB)
-    assert per_env < 10**6
