@@ -501,3 +501,13 @@ def test_a_line_that_names_the_batched_backend_runs_batched_on_the_campaigns_dev
         assert [wanted in line for line in printed] == [extra != [], True], printed
     bad = run_main(campaign.main, [str(write_plan(tmp_path, item.replace("BACKEND", "ray")))])
     assert bad.returncode == 2 and "backend 'ray'; valid: local, batched" in bad.stderr
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_the_cpu_column_says_whether_the_cpu_has_native_bf16(monkeypatch, native):
+    """Two VMs both called "AMD EPYC" ran the campaign, one with native bf16 and one without,
+    where `--precision auto` picks different precisions at K > 1: the column tells them apart."""
+    from a3c_runtime import flags
+
+    monkeypatch.setattr(flags, "native_bf16", lambda: native)
+    assert campaign.cpu_model().endswith(", native bf16") is native

@@ -28,7 +28,8 @@ Four kinds of item:
   the figure's results.csv that the claims page's Atari rows read.
 
 Each sweep invocation has a row in SWEEPS.tsv beside the plan: its item, folder, start and end
-(UTC), wall time, the runs it held before and after, and the CPU model and cores that ran it;
+(UTC), wall time, the runs it held before and after, and the CPU model (with ", native
+bf16" where it has it) and cores that ran it;
 the row is written when the sweep starts and kept current while it runs, so a campaign killed
 outright loses at most a minute of it. A SIGTERM while a sweep runs stops it cleanly (its runs
 checkpoint) and the campaign with it (exit 130).
@@ -365,14 +366,19 @@ def ran_on(command: list[str]) -> str:
 
 def cpu_model() -> str:
     """The CPU's model name (as lscpu prints it, from /proc/cpuinfo), for the record of where
-    each run ran."""
+    each run ran, and "native bf16" where it has it: two VMs both called "AMD EPYC", one with
+    and one without, run `--precision auto` in different precisions at K > 1."""
+    from a3c_runtime.flags import native_bf16
+
+    name = platform.processor() or "unknown"
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+                name = line.split(":", 1)[1].strip()
+                break
     except OSError:
         pass
-    return platform.processor() or "unknown"
+    return f"{name}, native bf16" if native_bf16() else name
 
 
 def log_sweep(plan: Path, item: Item, sweep: Sweep, before: int, started: float) -> None:
