@@ -260,10 +260,9 @@ def test_a_sweep_item_makes_new_paired_lines_from_the_plans_own_configuration(li
     assert done.returncode == 2 and "no script agents/no_such_agent.py" in done.stderr
 
 
-def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
-    """The figure's results.csv, which the claims page's Atari rows read, follows the runs."""
-    plan = write_plan(
-        tmp_path,
+def pong_item(out: Path, lines: list[str]) -> str:
+    """A plan's item "b": Figure 6.10's `lines` on Pong, 3 seeds x 3M steps, into `out`."""
+    return textwrap.dedent(
         f"""
         [[item]]
         id = "b"
@@ -271,11 +270,21 @@ def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
         kind = "atari"
         figure = "fig6.10"
         game = "Pong"
-        lines = ["vf1.0", "vf0.5"]
+        lines = {json.dumps(lines)}
         seeds = 3
         steps = 3000000
         num_workers = 2
-        out = "{tmp_path / "atari"}"
+        out = "{out}"
+        """
+    )
+
+
+def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
+    """The figure's results.csv, which the claims page's Atari rows read, follows the runs."""
+    plan = write_plan(
+        tmp_path,
+        f"""
+        {pong_item(tmp_path / "atari", ["vf1.0", "vf0.5"])}
         """,
     )
     ran = []
@@ -448,17 +457,7 @@ def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
         lines = [{{ script = "{ff}", out = "{new}" }},
                  {{ script = "{lstm}", out = "{tmp_path / "lstm"}" }}]
 
-        [[item]]
-        id = "b"
-        title = "Pong"
-        kind = "atari"
-        figure = "fig6.10"
-        game = "Pong"
-        lines = ["vf1.0"]
-        seeds = 3
-        steps = 3000000
-        num_workers = 2
-        out = "{tmp_path / "atari"}"
+        {pong_item(tmp_path / "atari", ["vf1.0"])}
         """,
     )
     printed = run_main(campaign.main, [str(plan), "--dry-run", "--backend", "batched"]).stdout

@@ -442,19 +442,30 @@ def test_an_interrupted_sweep_stops_the_comparison_with_130(stand_in, tmp_path, 
     assert not (out / "comparison.md").exists()
 
 
+def tiny_ff_elu(out: Path, steps: str, interval: str, *extra: str) -> list[str]:
+    """A3C FF against itself with ELU, 3 runs a line, 2 episodes an evaluation."""
+    return [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", steps,
+            "--eval-interval", interval, "--eval-episodes", "2", *extra,
+            "--out", str(out)]  # fmt: skip
+
+
+def run_three_pairs(argv: list[str], out: Path):
+    """The comparison run; it succeeds and both lines hold runs 0-2."""
+    done = run_main(compare.main, argv)
+    assert done.returncode == 0, done.stdout + done.stderr
+    base, other = table(out / "base"), table(out / "other")
+    assert sorted(base) == sorted(other) == ["run-0000", "run-0001", "run-0002"]
+    return done, base, other
+
+
 @pytest.mark.slow
 def test_a_tiny_comparison_end_to_end(tmp_path):
     """Two configurations of a3c_ff.py, 3 runs each of 2,000 steps, 1 worker: both lines run
     at the same learning rates and seeds, the result is written, and a second start runs
     nothing."""
     out = tmp_path / "cmp"
-    argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", "2000",
-            "--eval-interval", "400", "--eval-episodes", "2", "--cpus", "2",
-            "--out", str(out)]  # fmt: skip
-    done = run_main(compare.main, argv)
-    assert done.returncode == 0, done.stdout + done.stderr
-    base, other = table(out / "base"), table(out / "other")
-    assert sorted(base) == sorted(other) == ["run-0000", "run-0001", "run-0002"]
+    argv = tiny_ff_elu(out, "2000", "400", "--cpus", "2")
+    done, base, other = run_three_pairs(argv, out)
     for run_id, row in base.items():
         assert row["status"] == other[run_id]["status"] == "ok", (row, other[run_id])
         assert row["learning-rate"] == other[run_id]["learning-rate"]
@@ -509,13 +520,7 @@ def test_a_batched_comparison_runs_each_line_as_one_program(tmp_path):
     """--backend batched: each line's 3 runs are one batched program (their closing lines say
     so), paired by learning rate and seed as on the process backend, and the result is written."""
     out = tmp_path / "cmp"
-    argv = [FF, FF, "--other-flags", "--activation elu", "--runs", "3", "--steps", "150",
-            "--eval-interval", "30", "--eval-episodes", "2", "--backend", "batched",
-            "--out", str(out)]  # fmt: skip
-    done = run_main(compare.main, argv)
-    assert done.returncode == 0, done.stdout + done.stderr
-    base, other = table(out / "base"), table(out / "other")
-    assert sorted(base) == sorted(other) == ["run-0000", "run-0001", "run-0002"]
+    done, base, other = run_three_pairs(tiny_ff_elu(out, "150", "30", "--backend", "batched"), out)
     for run_id, row in base.items():
         assert row["status"] == other[run_id]["status"] == "ok"
         assert (row["learning-rate"], row["seed"]) == (
