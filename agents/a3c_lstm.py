@@ -227,8 +227,11 @@ class ActorCritic(nn.Module):
         -> log-probabilities (T, B, A), values (T, B) and the state after the last step.
         episode_starts (T, B) bool: an episode starts at step t > 0, from the zero state."""
         steps, batch = obs.shape[:2]
-        # channels_last makes oneDNN's convolution backward about 2x faster on CPU
-        x = obs.flatten(0, 1).to(dtype=torch.float32, memory_format=torch.channels_last)
+        # channels_last makes oneDNN's convolution backward about 2x faster on CPU. (One step's
+        # frames taken as they are: flattening a 1 x 1 (T, B) strides the result so that
+        # torch.func.vmap, which the sweep's batched backend runs this under, refuses the layout)
+        x = obs[0] if steps == 1 else obs.flatten(0, 1)
+        x = x.to(dtype=torch.float32, memory_format=torch.channels_last)
         if self.obs_scale != 1.0:
             x = x * self.obs_scale
         features = self.torso(x).view(steps, batch, -1)  # conv and FC batched over all T * B

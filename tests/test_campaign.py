@@ -438,9 +438,13 @@ def test_a_line_whose_sweep_json_is_not_an_object_is_a_bad_plan(tmp_path):
 
 def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
     """--backend batched: a Catch sweep of a script the batched backend takes runs batched (its
-    runs' closing lines say so, SWEEPS.tsv names the device); an LSTM line and an Atari item
-    stay on the process backend; --device without it is refused in one line."""
-    ff, lstm = ROOT / "agents" / "a3c_ff.py", ROOT / "agents" / "a3c_lstm.py"
+    runs' closing lines say so, SWEEPS.tsv names the device); a future-work line (a script it
+    does not take) and an Atari item stay on the process backend; --device without it is
+    refused in one line."""
+    ff, online = (
+        ROOT / "agents" / "a3c_ff.py",
+        ROOT / "agents" / "future_work" / "a3c_lws_online.py",
+    )
     new = tmp_path / "ff"
     plan = write_plan(
         tmp_path,
@@ -455,7 +459,7 @@ def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
         samples = ["learning-rate=loguniform:1e-4:1e-2"]
         flags = ["--eval-interval", "30", "--eval-episodes", "3", "--t-max", "5"]
         lines = [{{ script = "{ff}", out = "{new}" }},
-                 {{ script = "{lstm}", out = "{tmp_path / "lstm"}" }}]
+                 {{ script = "{online}", out = "{tmp_path / "online"}" }}]
 
         {pong_item(tmp_path / "atari", ["vf1.0"])}
         """,

@@ -382,8 +382,8 @@ NOT_AGENT = "agents/a3c_tools/sweep.py"
         ([FF, LPQ, "--from", *COMMITTED], "--from analyses sweeps already run: BASE OTHER"),
         (["--from", COMMITTED[0], "results/sweep_catch/a3c_ff"], "the two sweeps do not pair"),
         ([FF, LPQ, "--device", "cuda"], "--device needs --backend batched"),
-        ([FF, "agents/a3c_lstm.py", "--backend", "batched"], "not a3c_lstm.py; use --backend "
-         "local"),
+        ([FF, "agents/future_work/a3c_lws_online.py", "--backend", "batched"],
+         "not a3c_lws_online.py; use --backend local"),
         ([FF, LPQ, "--fast", "--backend", "batched"], "cannot batch --num-workers 2"),
     ],
 )  # fmt: skip

@@ -20,8 +20,11 @@ worker's generator, env and frames, so the script's own --resume continues it ex
 stdout.log with the run's closing line; the sweep writes results.csv. Stopped (Ctrl-C, SIGTERM),
 every run is checkpointed at its last update, and the next start of the sweep resumes them.
 
-What it batches: the scripts of BATCHED_SCRIPTS (FF, LWS, SS, WW, LPQ, GLPQ) on Catch-v0
-with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS.
+What it batches: the scripts of BATCHED_SCRIPTS (FF, LSTM, LWS, SS, WW, LPQ, GLPQ) on Catch-v0
+with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS. An
+LSTM run carries its recurrent state across rollouts as its worker does (zeroed where an
+episode ends, the learning pass replaying the rollout from its start state), and its
+evaluation a state per episode as the runtime's does.
 Anything else is refused in one line before anything runs (`batch_problem`, and `probe`: one
 update of the network under vmap).
 """
@@ -31,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import dataclasses
+import functools
 import os
 import sys
 import time
@@ -42,6 +46,7 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from a3c_runtime import (
     Checkpoint,
     UsageError,
@@ -59,10 +64,10 @@ from torch.func import functional_call, grad, stack_module_state, vmap
 
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
 
-# the scripts whose worker is a3c_ff.py's (GLPQ's adds its tau schedule and loss correction) and
-# whose network vmaps; not yet: LSTM (its worker carries a recurrent state across rollouts)
-BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_lws.py", "a3c_ss.py", "a3c_ww.py", "a3c_lpq.py",
-                   "a3c_glpq.py")  # fmt: skip
+# the scripts whose worker is a3c_ff.py's (GLPQ's adds its tau schedule and loss correction,
+# LSTM's its recurrent state) and whose network vmaps
+BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_lstm.py", "a3c_lws.py", "a3c_ss.py", "a3c_ww.py",
+                   "a3c_lpq.py", "a3c_glpq.py")  # fmt: skip
 # flags that may differ between the runs of one batch; every other flag is the batch's
 PER_RUN_FLAGS = ("seed", "learning_rate", "weight_init", "bias_init", "run_dir", "exp_name",
                  "eval_greedy")  # fmt: skip
@@ -117,10 +122,10 @@ def batch_problem(script: str, runs_args: list[Any]) -> str | None:
 # The pieces of the worker's update, for N runs at once
 # ------------------------------------------------------------------------------------------------
 def network_frames(frames: torch.Tensor) -> torch.Tensor:
-    """uint8 frames (N, B, 4, 84, 84) as float32 with each run's (B, 4, 84, 84) channels-last:
-    the layout the scripts' networks convert their input to, so that their
-    `obs.to(float32, channels_last)` is a no-op under vmap (which cannot change a layout)."""
-    return frames.permute(0, 1, 3, 4, 2).contiguous().float().permute(0, 1, 4, 2, 3)
+    """uint8 frames (..., 4, 84, 84) as float32 with each frame stack channels-last: the layout
+    the scripts' networks convert their input to, so that their `obs.to(float32,
+    channels_last)` is a no-op under vmap (which cannot change a layout)."""
+    return frames.movedim(-3, -1).contiguous().float().movedim(-1, -3)
 
 
 def sample_actions(log_probs: torch.Tensor, uniforms: torch.Tensor) -> torch.Tensor:
@@ -151,6 +156,27 @@ def clip_stacked(grads: list[torch.Tensor], mode: str, bound: float) -> torch.Te
         for g in grads:
             g.mul_(factor.view(-1, *[1] * (g.dim() - 1)))
     return global_norm
+
+
+def lstm_cell(cell: torch.nn.LSTMCell, x: torch.Tensor, state: tuple) -> tuple:
+    """nn.LSTMCell's step, torch's own formula (ATen's lstm_cell: gates = W_ih x + b_ih + W_hh h
+    + b_hh, split i, f, g, o; c' = sigma(f) c + sigma(i) tanh(g); h' = sigma(o) tanh(c')) in ops
+    that vmap batches: aten::lstm_cell has no batching rule. The same values to float
+    rounding."""
+    h, c = state
+    gates = F.linear(x, cell.weight_ih, cell.bias_ih) + F.linear(h, cell.weight_hh, cell.bias_hh)
+    i, f, g, o = gates.chunk(4, dim=-1)
+    c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+    return torch.sigmoid(o) * torch.tanh(c), c
+
+
+def vmappable(network: torch.nn.Module) -> torch.nn.Module:
+    """The network with each nn.LSTMCell stepping through `lstm_cell` (its parameters, by the
+    same names, are still the ones functional_call substitutes)."""
+    for module in network.modules():
+        if isinstance(module, torch.nn.LSTMCell):
+            module.forward = functools.partial(lstm_cell, module)
+    return network
 
 
 class StackedRMSprop:
@@ -270,7 +296,7 @@ class BatchedA3C:
             seeds.append(process_seed(args.seed, 0))  # the worker's seed
             self.rngs.append(np.random.default_rng(seeds[-1]))
         self.cpu_model = models[0]  # the evaluations' and checkpoints' network
-        self.base = copy.deepcopy(models[0]).to(self.device)
+        self.base = vmappable(copy.deepcopy(models[0]).to(self.device))
         params, buffers = stack_module_state(models)
         self.names = list(params)
         self.params = [params[k].detach().to(self.device) for k in self.names]
@@ -281,6 +307,12 @@ class BatchedA3C:
                                         first.rms_init)  # fmt: skip
         self.envs = TorchCatchVectorEnv(n, self.device)
         self.envs.reset(seed=seeds)
+        # LSTM: the state each run's worker carries across rollouts, (N, 1, cells) each; () for
+        # a feed-forward network
+        self.state: tuple[torch.Tensor, ...] = ()
+        if hasattr(self.base, "initial_state"):
+            self.state = tuple(s.expand(n, *s.shape).clone().to(self.device)
+                               for s in models[0].initial_state(1))  # fmt: skip
         self.step_count = 0
         self.wall_offsets = [0.0] * n
         if runs[0].checkpoint is not None:
@@ -303,7 +335,9 @@ class BatchedA3C:
                 for name, stacked in self.buffers.items():
                     if name in checkpoint.model:  # (LWS's fixed centroids)
                         stacked[i] = checkpoint.model[name].to(self.device)
-                rng_state, env_state, _ = checkpoint.workers[0]
+                rng_state, env_state, _, *carried = checkpoint.workers[0]
+                for stacked, saved in zip(self.state, carried[0] if carried else (), strict=True):
+                    stacked[i] = saved.to(self.device)  # (LSTM: its carried state)
                 self.rngs[i].bit_generator.state = rng_state["bit_generator"]
                 self.envs.set_numpy_state(i, arrays_of(env_state["env"]))
                 self.wall_offsets[i] = checkpoint.wall_time
@@ -316,21 +350,35 @@ class BatchedA3C:
         scale = getattr(self.base, "policy_loss_scale", None)
         self.loss_scale = scale() if scale is not None else 1.0
 
-    def forward(self, params: list[torch.Tensor], buffers: dict, frames: torch.Tensor) -> Any:
-        state = {**dict(zip(self.names, params, strict=True)), **buffers}
-        return functional_call(self.base, state, (frames,))
+    def forward(
+        self, params: list[torch.Tensor], buffers: dict, frames: torch.Tensor, state: tuple
+    ) -> Any:
+        """One run's network: log-probs and values of frames (B, 4, 84, 84); an LSTM's of
+        frames (T, B, 4, 84, 84) from its state (h, c), and the state after them."""
+        weights = {**dict(zip(self.names, params, strict=True)), **buffers}
+        return functional_call(self.base, weights, (frames, state) if state else (frames,))
 
-    def act(self, frames: torch.Tensor) -> Any:
-        """Every run's forward without gradients. In grad mode, though nothing requires a
-        gradient (so no graph is built): acting shortcuts that compare data, as LWS's cache of
-        its similarity weights (torch.equal), are taken only without it, and vmap cannot batch
-        them; the values are the same."""
+    def act(self, frames: torch.Tensor, state: tuple = ()) -> tuple:
+        """Every run's forward of one step's frames (N, B, 4, 84, 84) without gradients: its
+        log-probs (N, B, A), values (N, B) and (LSTM) the state after the step. In grad mode,
+        though nothing requires a gradient (so no graph is built): acting shortcuts that compare
+        data, as LWS's cache of its similarity weights (torch.equal), are taken only without
+        it, and vmap cannot batch them; the values are the same."""
         with torch.enable_grad():
-            return vmap(self.forward)(self.params, self.buffers, frames)
+            if not state:
+                return (*vmap(self.forward)(self.params, self.buffers, frames, ()), ())
+            log_probs, values, state = vmap(self.forward)(
+                self.params, self.buffers, frames[:, None], state
+            )  # LSTM: T = 1
+            return log_probs[:, 0], values[:, 0], state
 
-    def loss(self, params, buffers, frames, actions, returns):
+    def loss(self, params, buffers, frames, actions, returns, state):
         a = self.args[0]
-        log_probs, values = self.forward(params, buffers, frames)
+        if state:  # LSTM: the rollout (T = n, B = 1) replayed through time from its start state
+            log_probs, values, _ = self.forward(params, buffers, frames, state)
+            log_probs, values = log_probs.flatten(0, 1), values.flatten(0, 1)
+        else:
+            log_probs, values = self.forward(params, buffers, frames, ())
         loss, policy_loss, value_loss, entropy = self.module.a3c_loss(
             log_probs, actions, values, returns, a.ent_coef, a.vf_coef, a.value_loss_form
         )
@@ -348,9 +396,10 @@ class BatchedA3C:
         actions = torch.zeros((self.t_max, n_runs), dtype=torch.int64, device=self.device)
         rewards = torch.zeros((self.t_max, n_runs), dtype=torch.float32, device=self.device)
         dones = np.zeros((self.t_max, n_runs), dtype=bool)
+        rollout_state = tuple(s.clone() for s in self.state)  # (LSTM: the rollout's start)
         with torch.no_grad():
             for t in range(self.t_max):
-                log_probs, _ = self.act(network_frames(frames[t][:, None]))
+                log_probs, _, self.state = self.act(network_frames(frames[t][:, None]), self.state)
                 actions[t] = sample_actions(log_probs[:, 0], self.uniforms.next())
                 obs, rewards[t], _, ended = envs.step(actions[t])
                 frames[t + 1] = obs
@@ -359,22 +408,28 @@ class BatchedA3C:
                     if not ended.all():
                         raise RuntimeError("the runs' episodes ended at different steps")
                     dones[t] = True
+                    # LSTM: the next episode starts from the zero state
+                    self.state = tuple(torch.zeros_like(s) for s in self.state)
                     break
             n = t + 1
             bootstrap = np.zeros(n_runs, dtype=np.float32)
             if not dones[n - 1].all():  # V(s_n), as the worker's learning pass computes it
-                bootstrap = self.act(network_frames(frames[n][:, None]))[1][:, 0]
+                bootstrap = self.act(network_frames(frames[n][:, None]), self.state)[1][:, 0]
                 bootstrap = bootstrap.float().cpu().numpy()
         done_values = np.zeros((n, n_runs), dtype=np.float32)  # (Catch never truncates)
         returns = self.module.n_step_returns(
             rewards[:n].cpu().numpy(), dones[:n], done_values, bootstrap, a.gamma
         )
+        rollout = frames[:n].transpose(0, 1)  # (N, n, 4, 84, 84)
+        if self.state:
+            rollout = rollout[:, :, None]  # LSTM: (N, T = n, B = 1, 4, 84, 84)
         grads, (policy_loss, value_loss, entropy) = vmap(grad(self.loss, has_aux=True))(
             self.params,
             self.buffers,
-            network_frames(frames[:n].transpose(0, 1)),
+            network_frames(rollout),
             actions[:n].T.contiguous(),
             torch.as_tensor(returns.T.copy(), device=self.device),
+            rollout_state,
         )
         self.last_actions = actions[:n].T  # (N, n), for the equivalence tests
         clip_stacked(grads, a.grad_clip_mode, a.grad_clip)
@@ -406,10 +461,12 @@ class BatchedA3C:
             self.eval_envs = TorchCatchVectorEnv(n * episodes, self.device)
         obs = self.eval_envs.reset(seed=seeds)
         greedy = torch.tensor([args.eval_greedy for args in self.args], device=self.device)
+        # LSTM: a zero state per episode, as evaluate_network starts each
+        state = tuple(s.new_zeros(n, episodes, s.shape[-1]) for s in self.state)
         with torch.no_grad():  # (not inference mode: the env's tensors are updated outside it)
             while True:
                 frames = network_frames(obs.view(n, episodes, *obs.shape[1:]))
-                log_probs, _ = self.act(frames)
+                log_probs, _, state = self.act(frames, state)
                 probs = log_probs.exp().cpu()
                 drawn = torch.stack([torch.multinomial(probs[i], 1, generator=generator)[:, 0]
                                      for i, generator in enumerate(generators)])  # fmt: skip
@@ -422,14 +479,21 @@ class BatchedA3C:
         return [{"global_step": self.step_count, "scores": scores[i].tolist(), "seconds": seconds}
                 for i in range(n)]  # fmt: skip
 
+    def worker_state(self, i: int) -> tuple:
+        """Run i's worker as its script's `worker_state()` gives it to a checkpoint: its
+        generator, env and frames (and an LSTM's carried state)."""
+        parts = (self.uniforms.generator(i), NumpyStateView(self.envs, i),
+                 self.envs.stack[i : i + 1].cpu().numpy())  # fmt: skip
+        if self.state:
+            parts += (tuple(s[i].cpu().clone() for s in self.state),)
+        return parts
+
     def checkpoint(self, i: int, files: RunFiles, wall_time: float) -> None:
-        worker = (self.uniforms.generator(i), NumpyStateView(self.envs, i),
-                  self.envs.stack[i : i + 1].cpu().numpy())  # fmt: skip
         snapshot = {
             "model": self.network(i),
             "optimizer": {"square_avg": [s[i].cpu().clone() for s in self.optimizer.square_avg]},
             "global_step": self.step_count,
-            "workers": {0: saved_state(worker)},
+            "workers": {0: saved_state(self.worker_state(i))},
             "pending_evaluations": [],
         }
         shared = SimpleNamespace(model=self.cpu_model, global_step=lambda: self.step_count)

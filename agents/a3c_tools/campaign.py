@@ -44,7 +44,7 @@ Where the runs run is the command's, not the plan's (but for a sweep item's line
 `backend = "batched"`, a study of the backends themselves: it runs batched on --device, cpu by
 default): `--backend batched --device cuda` runs
 each Catch sweep of a script the batched backend takes (a3c_tools.batched.BATCHED_SCRIPTS) as
-one batched program on the GPU, and every other sweep (Atari, LSTM, the future-work scripts) on
+one batched program on the GPU, and every other sweep (Atari, the future-work scripts) on
 the process backend as before; SWEEPS.tsv names the device of a batched sweep. A line may so
 hold runs of both backends: run i is the same run on either (tests/test_batched.py), but for the
 order of floating-point sums. A batched sweep's runs share one wall clock, so its CPU-hours in
