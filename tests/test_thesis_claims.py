@@ -206,6 +206,8 @@ def test_a_row_rests_on_its_first_look_and_an_extended_row_on_its_second(tmp_pat
     assert effect == f"{gain[:8].mean():+.3f} [{low:+.3f}, {high:+.3f}]"
     first_effect, first_verdict = effect, verdict
     assert claims.evidence({**claim, "runs": 5})[1].startswith(f"{gain[:5].mean():+.3f} [")
+    # a row of 15 runs is not looked at while the line holds 11: no verdict from a peek
+    assert claims.evidence({**claim, "runs": 15})[2] == "not run yet"
     # extended to 15, the line at 11: the first look's numbers and verdict, and the extension
     extended = {**claim, "extend": {"runs": 15}}
     ours, effect, verdict = claims.evidence(extended)

@@ -24,8 +24,10 @@ line (no `baseline`, `expect = "random play"`: Figure 6.10's "no learning at all
 seed by seed against random play, with no interval (`atari_line_evidence`).
 
 Looks. A row rests on a fixed set of runs: its first look, runs 0..runs-1 of both lines (the
-claim's `runs`, FIRST_LOOK by default), whatever else its lines hold (a line shared with a row
-that is extended grows, and the rows that are not extended must not gain pairs from it). A row
+claim's `runs`, FIRST_LOOK by default), made once both lines hold them all (until then the row
+is "not run yet": no verdict from a peek at fewer), whatever else its lines hold (a line shared
+with a row that is extended grows, and the rows that are not extended must not gain pairs from
+it). A row
 extended because its first look was inconclusive (the claim's `extend`: N runs, and the second
 look's folders where they are new ones) is judged at its second look, runs 0..N-1, once both
 lines hold N runs, with a SECOND_LOOK (97.5%) interval, and shows the first look's 95% interval
@@ -191,10 +193,13 @@ def compared(claim: dict) -> Looks | None:
         return Looks(first, None, None)
     column = claim.get("score", "score")
     first_runs = claim.get("runs", FIRST_LOOK)
-    first = pair(
-        scores(claim["baseline"], column), scores(claim["line"], column),
-        run_ids=run_ids(first_runs),
-    )  # fmt: skip
+    first = None
+    # the one look at the runs the row names, once both lines hold them all: no look before
+    if all(finished(folder, first_runs) for folder in (claim["baseline"], claim["line"])):
+        first = pair(
+            scores(claim["baseline"], column), scores(claim["line"], column),
+            run_ids=run_ids(first_runs),
+        )  # fmt: skip
     extend = claim.get("extend")
     if extend is None:
         return Looks(first, None, None)
