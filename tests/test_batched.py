@@ -185,7 +185,7 @@ def run_args(module, flags: dict, steps: int, seeds_and_rates) -> list:
 
 RUN_FLAGS = [(1, 7e-4), (1001, 3e-3)]  # per-run seeds and learning rates
 UPDATES = 50
-OTHER_NETWORKS = ("a3c_lstm", "a3c_lws", "a3c_ss", "a3c_ww", "a3c_lpq", "a3c_glpq")
+OTHER_NETWORKS = ("a3c_lws", "a3c_ss", "a3c_ww", "a3c_lpq", "a3c_glpq")  # (LSTM: below)
 # LWS as its Figure 6.3 runs ran it, "LWS S" (fixed centroids on a grid: buffers drawn from
 # each run's seed, stacked per run)
 LWS_AS_RUN = {"lws_similarity": "matrix", "lws_padding": "same", "lws_second_layer_maps": 32,
