@@ -511,11 +511,13 @@ def test_each_runs_evaluation_is_the_runtimes_evaluation_of_its_network(name):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-def test_each_update_on_a_gpu_is_the_scripts_update_from_its_state(monkeypatch):
+@pytest.mark.parametrize(("name", "t_max"), [("a3c_ff", 5), ("a3c_lstm", 7)])
+def test_each_update_on_a_gpu_is_the_scripts_update_from_its_state(monkeypatch, name, t_max):
     """The per-update test on a CUDA device (the lent GPU machine's check; CI has none): the
-    batch on the GPU takes the script's actions, its theta close to the script's CPU update."""
-    module = load_script("a3c_ff")
-    runs_args = run_args(module, {"t_max": 5}, 20 * 5, RUN_FLAGS)
+    batch on the GPU takes the script's actions, its theta close to the script's CPU update
+    (LSTM: and its carried state)."""
+    module = load_script(name)
+    runs_args = run_args(module, {"t_max": t_max}, steps_of(20, t_max), RUN_FLAGS)
     batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cuda")
     torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
     shareds = [one_update_shared(module, args, monkeypatch) for args in runs_args]
@@ -526,14 +528,17 @@ def test_each_update_on_a_gpu_is_the_scripts_update_from_its_state(monkeypatch):
     for _ in range(20):
         on_cpu.params = [p.cpu() for p in batch.params]
         on_cpu.optimizer.square_avg = [s.cpu() for s in batch.optimizer.square_avg]
-        on_cpu.step_count, on_cpu.uniforms, on_cpu.state = batch.step_count, batch.uniforms, ()
+        on_cpu.step_count, on_cpu.uniforms = batch.step_count, batch.uniforms
+        on_cpu.state = tuple(s.cpu() for s in batch.state)
         on_cpu.envs = CpuView(batch.envs)
         expected = [script_update(module, shared, on_cpu, i) for i, shared in enumerate(shareds)]
         batch.update()
-        for i, (actions, params, _, _) in enumerate(expected):
+        for i, (actions, params, _, worker) in enumerate(expected):
             np.testing.assert_array_equal(batch.last_actions[i].cpu().numpy(), actions.numpy())
             for p, q in zip(batch.params, params, strict=True):
                 torch.testing.assert_close(p[i].cpu(), q, rtol=1e-4, atol=1e-4)
+            for s, q in zip(batch.state, worker[3:4][0] if batch.state else (), strict=True):
+                torch.testing.assert_close(s[i].cpu(), q, rtol=1e-4, atol=1e-4)
 
 
 class CpuView:

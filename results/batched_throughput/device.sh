@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The batched backend on a lent GPU machine (issue 71, point 5), ready to run so that its short
 # time goes to measuring: first the CUDA equivalence check (tests/test_batched.py's GPU test:
-# 20 updates of 2 runs on the GPU against the script's own CPU updates), then
+# 20 updates of 2 runs, A3C FF and LSTM, on the GPU against the script's own CPU updates), then
 # benchmarks/batched_throughput.py on cuda at N = 50, 64, 256 and 1024 runs against the process
 # backend on every core (16 one-worker runs of agents/a3c_ff.py side by side). Everything it
 # prints goes to OUT/device.log, the benchmark's report to OUT/cuda.txt, the machine to
