@@ -127,7 +127,7 @@ def test_lines_pair_by_run_id_and_missing_lines_say_not_run_yet(tmp_path, monkey
             writer.writerow(["run_id", "status", "score", "score_all"])
             for i, value in enumerate(values):
                 writer.writerow([f"run-{i:04d}", "ok", value, value / 2])
-    claim = {"baseline": "a", "line": "b", "names": ["A", "B"], "expect": "better",
+    claim = {"baseline": "a", "line": "b", "names": ["A", "B"], "expect": "better", "runs": 3,
              "command": "make b"}  # fmt: skip
     ours, effect, verdict = claims.evidence(claim)
     assert "n = 3 paired runs" in ours and effect.startswith("+0.200")  # run-0003 has no pair
@@ -265,16 +265,16 @@ def test_two_looks_give_a_row_with_no_effect_a_directional_verdict_rarely():
     assert again[0.95].mean() > again[0.975].mean()
 
 
-@pytest.mark.parametrize("folder", ["results/future_work_catch/lpq_growth"])
-def test_the_committed_extended_row_shows_both_looks(folder):
+@pytest.mark.parametrize(("folder", "n"), [("results/future_work_catch/lws_online", 17)])
+def test_the_committed_extended_row_shows_both_looks(folder, n):
     with open(claims.CLAIMS, "rb") as f:
         data = claims.tomllib.load(f)
     [claim] = [
         c for section in data["section"] for c in section["claim"] if c.get("line") == folder
     ]
-    assert claim["runs"] == 5 and claim["extend"]["runs"] == 15
+    assert claim["runs"] == 5 and claim["extend"]["runs"] == n
     _, effect, _ = claims.evidence(claim)
-    assert "(n = 15, 97.5% t); first look (n = 5, 95% t): " in effect
+    assert f"(n = {n}, 97.5% t); first look (n = 5, 95% t): " in effect
 
 
 def write_figure(folder, rows):
@@ -566,10 +566,12 @@ def test_an_extended_rows_two_looks_make_one_level_5_percent_test():
 def test_rows_with_bf16_distances_are_struck_and_mixed_precision_rows_marked():
     judged = {j.claim["id"]: j for j in claims.judge(load_claims())}
     struck = {i for i, j in judged.items() if j.verdict.startswith("no verdict: runs had")}
-    assert struck == {"fw-lpq-value", "fw-glpq-value", "fw-lpq-data", "fw-glpq-data",
-                      "fw-lpq-growth"}  # fmt: skip
-    for i in struck:  # each names the campaign items that run it again
-        assert "f1" in judged[i].claim["defect"] and "bf16" in judged[i].claim["defect"]
+    assert struck == {"fw-lpq-value", "fw-glpq-value", "fw-lpq-data", "fw-glpq-data"}
+    for i in struck:  # each names the campaign item that runs it again
+        assert "f1b" in judged[i].claim["defect"] and "bf16" in judged[i].claim["defect"]
+    # LPQ with growth, run again by item f1, is judged on its float32 runs alone
+    growth = judged["fw-lpq-growth"].claim
+    assert growth["baseline"].endswith("lpq_f32") and growth["line"].endswith("lpq_growth_f32")
     mixed = {i for i, j in judged.items() if "mixed_precision" in j.claim}
     assert mixed == {"fig7.6-hot", "fig7.6-cold", "fig7.6-searing", "ch8-glpq-best",
                      "fig6.5-ww-ff-default"}  # fmt: skip
