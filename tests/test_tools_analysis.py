@@ -36,6 +36,19 @@ def test_the_summary_of_the_committed_runs_is_the_committed_one(tmp_path, capsys
     assert (folder / "curves.png").stat().st_size > 10_000
 
 
+def test_the_figures_legend_says_where_curves_were_not_kept(tmp_path):
+    """A line scored in results.csv whose runs' curves are gone is named in its panel's legend
+    with its run count; a line with fewer curves than runs says how many of how many."""
+    rows = [{"config": "lpq_growth_f32", "run_id": f"run-{i:04d}", "global_step": str(step),
+             "mean_return": "0.5"} for i in range(2) for step in (0, 50_000)]  # fmt: skip
+    finished = {"lpq_f32": 15, "lpq_growth_f32": 3, "lws": 2}
+    legends = future_work_summary.plot(rows, tmp_path / "curves.png", finished)
+    assert legends["prototype growth"] == ["lpq_f32 (15 runs: curves not kept)",
+                                           "lpq_growth_f32 (n=2 of 3 runs)"]  # fmt: skip
+    assert legends["online local weight sharing"] == ["lws (2 runs: curves not kept)"]
+    assert legends["prototypes from the data"] == ["lpq_f32 (15 runs: curves not kept)"]
+
+
 def test_the_initial_policies_are_the_committed_ones(capsys):
     assert future_work_initial_policy.main([]) == 0
     out = capsys.readouterr().out.splitlines()

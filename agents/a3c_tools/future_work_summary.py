@@ -77,15 +77,17 @@ def gather_curves(folder: Path) -> list[dict[str, str]]:
     return rows
 
 
-def plot(rows: list[dict[str, str]], path: Path, finished: dict[str, int]) -> None:
+def plot(rows: list[dict[str, str]], path: Path, finished: dict[str, int]) -> dict[str, list]:
     """The figure; `finished`: each configuration's finished runs, so that a legend says where
-    fewer runs' curves were kept (a run folder lost before its curve was gathered)."""
+    fewer runs' curves were kept (a run folder lost before its curve was gathered). Returns
+    each panel's legend labels."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True, sharey=True)
+    legends = {}
     for ax, (title, pairs) in zip(axes.flat, PANELS, strict=True):
         for config in dict.fromkeys(name for pair in pairs for name in pair):
             runs: dict[str, list[tuple[int, float]]] = {}
@@ -114,7 +116,8 @@ def plot(rows: list[dict[str, str]], path: Path, finished: dict[str, int]) -> No
             ax.fill_between(steps, mean - se, mean + se, alpha=0.15, color=colour)
         ax.set_title(title)
         ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
+        legends[title] = ax.get_legend_handles_labels()[1]
+        if legends[title]:
             ax.legend(fontsize=8, loc="upper left")
     for ax in axes[1]:
         ax.set_xlabel("global steps")
@@ -124,6 +127,7 @@ def plot(rows: list[dict[str, str]], path: Path, finished: dict[str, int]) -> No
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return legends
 
 
 def main(argv: list[str] | None = None) -> int:
