@@ -535,7 +535,8 @@ def multiplicity(judged: list[Judged]) -> str:
               and j.adjusted < ALPHA]  # fmt: skip
     if struck:
         survive += (
-            f"; {len(struck)} more would ({', '.join(struck)}) but are struck for a known defect"
+            f"; {len(struck)} more would ({', '.join(struck)}) but "
+            f"{'is' if len(struck) == 1 else 'are'} struck for a known defect"
         )
     survives = "verdict survives" if len(decided) == 1 else "verdicts survive"
     return (
