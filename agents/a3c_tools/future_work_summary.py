@@ -135,8 +135,10 @@ def main(argv: list[str] | None = None) -> int:
     folder = folder_argument("future_work_summary", about, argv)
     print("| configuration | runs | score (final 5), mean +- s.e. over runs | runs' scores |")
     print("|---|---:|---|---|")
+    finished = {}
     for config in CONFIGS:
         scores = run_scores(folder, config)
+        finished[config] = len(scores)
         if not scores:
             print(f"| {config} | 0 | not run yet | |")
             continue
@@ -147,9 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {config} | {len(values)} | {mean:.3f} +- {se:.3f} | {listed} |")
     rows = gather_curves(folder)
     print_fall_back(rows)
-    plot(
-        rows, folder / "curves.png", {config: len(run_scores(folder, config)) for config in CONFIGS}
-    )
+    plot(rows, folder / "curves.png", finished)
     return 0
 
 

@@ -27,13 +27,12 @@ Looks. A row rests on a fixed set of runs: its first look, runs 0..runs-1 of bot
 claim's `runs`, FIRST_LOOK by default), made once both lines hold them all (until then the row
 is "not run yet": no verdict from a peek at fewer), whatever else its lines hold (a line shared
 with a row that is extended grows, and the rows that are not extended must not gain pairs from
-it). A row
-extended because its first look was inconclusive (the claim's `extend`: N runs, and the second
-look's folders where they are new ones) is judged at its second look, runs 0..N-1, once both
-lines hold N runs, with a SECOND_LOOK (97.5%) interval, and shows the first look's 95% interval
-beside it; until then it keeps the first look's verdict and says the extension is in
-progress. Two looks at 95% each would give a row with no effect a directional verdict more
-often than 5%; at 95% then 97.5% the chance is at most 5% + 2.5% (the page states the rule, and
+it). A row extended because its first look was inconclusive (the claim's `extend`: N runs, and
+the second look's folders where they are new ones) is judged at its second look, runs 0..N-1,
+once both lines hold N runs, with a SECOND_LOOK (97.5%) interval, and shows the first look's 95%
+interval beside it; until then it keeps the first look's verdict and says the extension is in
+progress. Two looks at 95% each would give a row with no effect a directional verdict more often
+than 5%; at 95% then 97.5% the chance is at most 5% + 2.5% (the page states the rule, and
 tests/test_thesis_claims.py simulates it).
 
 Across the page (`judge`). Every row with an interval has a p-value, that of the two-sided
