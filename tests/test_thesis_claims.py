@@ -550,10 +550,11 @@ def test_verdicts_are_at_the_holm_adjusted_level():
     lead = page.split("**Multiplicity.**")[1].split("\n")[0]
     assert "45 tests" in lead and "Holm" in lead
     assert (
-        "2 verdicts survive: fig6.9-breakout-lws (reproduced), fw-glpq-value (contradicted)" in lead
+        "4 verdicts survive: fig6.9-breakout-lws (reproduced), fw-glpq-value (contradicted), "
+        "fw-lpq-data (contradicted), fw-glpq-data (contradicted)" in lead
     )
     assert "about 2.2 directional verdicts" in lead
-    assert "1 more would (fw-glpq-data) but is struck for a known defect" in lead
+    assert "struck" not in lead  # no row is struck, so none is named as one that would survive
 
 
 def test_an_extended_rows_two_looks_make_one_level_5_percent_test():
@@ -567,15 +568,16 @@ def test_an_extended_rows_two_looks_make_one_level_5_percent_test():
 def test_rows_with_bf16_distances_are_struck_and_mixed_precision_rows_marked():
     judged = {j.claim["id"]: j for j in claims.judge(load_claims())}
     struck = {i for i, j in judged.items() if j.verdict.startswith("no verdict: runs had")}
-    assert struck == {"fw-lpq-data", "fw-glpq-data"}
-    for i in struck:  # each names the campaign item that runs it again
-        assert "f1b" in judged[i].claim["defect"] and "bf16" in judged[i].claim["defect"]
-    # LPQ with growth and with a value head, run again by items f1 and f1b, are judged on their
-    # float32 runs alone
+    assert struck == set()  # every row with bf16 distances was run again (items a6, f1, f1b)
+    # chapter 8's LPQ and GLPQ rows, run again by items f1 and f1b, are judged on their float32
+    # runs alone, and each row's history says it was struck and why
     for i, idea in (("fw-lpq-growth", "lpq_growth_f32"), ("fw-lpq-value", "lpq_value_f32"),
-                    ("fw-glpq-value", "glpq_value_f32")):  # fmt: skip
+                    ("fw-glpq-value", "glpq_value_f32"), ("fw-lpq-data", "lpq_data_f32"),
+                    ("fw-glpq-data", "glpq_data_f32")):  # fmt: skip
         claim = judged[i].claim
         assert claim["baseline"].endswith("lpq_f32") and claim["line"].endswith(idea)
+        assert "struck" in claim["history"] and "bf16" in claim["history"]
+        assert "the bf16 runs are not used" in claim["history"]
     mixed = {i for i, j in judged.items() if "mixed_precision" in j.claim}
     assert mixed == {"fig7.6-hot", "fig7.6-cold", "fig7.6-searing", "ch8-glpq-best",
                      "fig6.5-ww-ff-default"}  # fmt: skip
@@ -584,10 +586,25 @@ def test_rows_with_bf16_distances_are_struck_and_mixed_precision_rows_marked():
               if row.startswith("| ") and "*precision mixed*:" in row]  # fmt: skip
     assert set(marked) == mixed
     plan = claims.tomllib.loads((ROOT / "results" / "campaign" / "plan.toml").read_text())
-    reruns = [line["config_from"] for item in plan["item"] if item["id"].startswith("f1")
-              for line in item["lines"]]  # fmt: skip
-    for i in struck:
-        assert judged[i].claim["line"] in reruns
+    reruns = {line["out"] for item in plan["item"] if item["id"].startswith(("a6", "f1"))
+              for line in item["lines"]}  # fmt: skip
+    for i in ("fw-lpq-growth", "fw-lpq-value", "fw-glpq-value", "fw-lpq-data", "fw-glpq-data"):
+        assert {judged[i].claim["line"], judged[i].claim["baseline"]} <= reruns, i
+
+
+def test_a_row_with_a_known_defect_is_struck_but_stays_in_the_family():
+    """No committed row has a defect now; the rule still holds for one that has: no verdict,
+    its test still counted in Holm's family, and the lead names it if it would have survived."""
+    data = load_claims()
+    row = next(c for s in data["section"] for c in s["claim"] if c["id"] == "fw-glpq-value")
+    row["defect"] = "its runs computed the distances in bf16"
+    judged = {j.claim["id"]: j for j in claims.judge(data)}
+    assert judged["fw-glpq-value"].verdict.startswith("no verdict: runs had a known defect")
+    assert judged["fw-glpq-value"].adjusted < claims.ALPHA  # judged, then struck
+    assert claims.family_size(list(judged.values())) == 45
+    lead = claims.multiplicity(list(judged.values()))
+    assert "1 more would (fw-glpq-value) but is struck for a known defect" in lead
+    assert "fw-glpq-value (contradicted)" not in lead
 
 
 def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_rows():
