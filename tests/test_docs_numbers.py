@@ -89,3 +89,50 @@ def test_a_page_stating_another_value_is_found():
     }
     pattern = HEADLINES["the fast setting's time to 0.9"][0]
     assert len(disagreements(statements(pattern, twice))) == 2
+
+
+# The README's results table, Atari columns: (script, form's first word) -> (figure, line), each
+# cell the mean over the committed seeds' final evaluations at 2M steps, as the table rounds it
+ATARI_CELLS = {
+    ("a3c_ff.py", "default"): ("fig6.9", "ff"),
+    ("a3c_lws.py", "default"): ("fig6.9", "lws"),
+    ("a3c_ss.py", "default"): ("fig6.9", "ss"),  # no Atari runs: "-"
+    ("a3c_ww.py", "default"): ("fig6.9", "ww"),
+    ("a3c_lstm.py", "default"): ("fig6.9", "lstm"),  # no Atari runs: "-"
+    ("a3c_lpq.py", "default"): ("fig7.8", "lpq"),
+    ("a3c_lpq.py", "as run, Figure 7.8 (a)"): ("fig7.8", "lpq_fig78"),
+    ("a3c_glpq.py", "default (eq. 7.7 as written)"): ("fig7.8", "glpq"),
+    ("a3c_glpq.py", "as run: the code's relative distance (b)"): ("fig7.8", "glpq_fig78"),
+    ("a3c_glpq.py", "as run, Figure 7.8 (c)"): ("fig7.8", "glpq_as_run"),
+}
+
+
+def atari_means() -> dict[tuple[str, str, str], float]:
+    """(figure, game, line) -> the mean final score over its committed seeds."""
+    import csv
+
+    scores: dict[tuple[str, str, str], list[float]] = {}
+    for figure in ("fig6.9", "fig7.8"):
+        with open(ROOT / "results" / "atari_figures" / figure / "results.csv") as f:
+            for row in csv.DictReader(f):
+                key = (figure, row["game"], row["line"])
+                scores.setdefault(key, []).append(float(row["final_score"]))
+    return {key: sum(v) / len(v) for key, v in scores.items()}
+
+
+def test_the_readmes_atari_columns_are_the_committed_runs_means():
+    means = atari_means()
+    table = {}
+    for line in (ROOT / "README.md").read_text().splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 7 and cells[0].startswith("`a3c_"):
+            table[(cells[0].strip("`"), cells[1])] = (cells[4], cells[5])
+    assert set(table) == set(ATARI_CELLS), "README.md's results table: rows changed"
+    for (script, form), (figure, line) in ATARI_CELLS.items():
+        for game, cell in zip(("Breakout", "BeamRider"), table[(script, form)], strict=True):
+            key = (figure, game, line)
+            if key not in means:
+                assert cell == "-", f"README.md: {script} {form} {game}: no committed runs"
+                continue
+            digits = 1 if game == "Breakout" else 0  # the table's rounding
+            assert cell == f"{means[key]:.{digits}f}", (script, form, game, cell, means[key])
