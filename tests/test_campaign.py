@@ -514,3 +514,44 @@ def test_the_cpu_column_says_whether_the_cpu_has_native_bf16(monkeypatch, native
 
     monkeypatch.setattr(flags, "native_bf16", lambda: native)
     assert campaign.cpu_model().endswith(", native bf16") is native
+
+
+def test_batchable_last_runs_what_a_gpu_could_not_batch_first(tmp_path, monkeypatch):
+    """--batchable-last: the Catch sweeps the batched backend takes run after every other sweep
+    (here the future-work line of the same item and the Atari item after it); without it the
+    plan's order; with --backend batched it is refused in one line."""
+    ff = ROOT / "agents" / "a3c_ff.py"
+    online = ROOT / "agents" / "future_work" / "a3c_lws_online.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "s1"
+        title = "new lines"
+        kind = "sweep"
+        runs = 2
+        seed = 7500
+        total_timesteps = 60
+        lines = [{{ script = "{ff}", out = "{tmp_path / "ff"}" }},
+                 {{ script = "{online}", out = "{tmp_path / "online"}" }}]
+
+        {pong_item(tmp_path / "atari", ["vf1.0"])}
+        """,
+    )
+    ran = []
+    monkeypatch.setattr(
+        campaign, "run_logged", lambda plan, item, sweep: ran.append(sweep.out) or 0
+    )
+    monkeypatch.setattr(campaign, "execute", lambda command: (0, ""))  # the Atari figure's draw
+    assert run_main(campaign.main, [str(plan)]).returncode == 1  # not finished: nothing ran
+    in_plan_order = [p.name for p in ran]
+    ran.clear()
+    run_main(campaign.main, [str(plan), "--batchable-last"])
+    assert in_plan_order[:2] == ["ff", "online"] and len(in_plan_order) == 3
+    assert [p.name for p in ran][0] == "online" and [p.name for p in ran][-1] == "ff"
+    printed = run_main(campaign.main, [str(plan), "--dry-run", "--batchable-last"]).stdout
+    commands = [line for line in printed.splitlines() if "a3c_tools.sweep" in line]
+    assert "a3c_lws_online.py" in commands[0] and "a3c_ff.py" in commands[-1]
+    refused = run_main(campaign.main, [str(plan), "--batchable-last", "--backend", "batched"])
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
+    assert "--batchable-last is for the process backend" in refused.stderr

@@ -48,7 +48,10 @@ one batched program on the GPU, and every other sweep (Atari, the future-work sc
 the process backend as before; SWEEPS.tsv names the device of a batched sweep. A line may so
 hold runs of both backends: run i is the same run on either (tests/test_batched.py), but for the
 order of floating-point sums. A batched sweep's runs share one wall clock, so its CPU-hours in
-PROGRESS.md are the batch's wall time per run, not CPU time.
+PROGRESS.md are the batch's wall time per run, not CPU time. `--batchable-last` (on a CPU) runs
+those Catch sweeps after every other sweep of the plan, so that the CPU first does what a GPU
+could not batch while a device, when one is lent, runs the rest; the order of the runs changes
+nothing in a plan's analysis, which waits for all of them.
 
 Exit codes: 0 when the plan is done, 1 when a sweep failed, 2 for a bad plan or options
 (nothing runs), 130 when interrupted.
@@ -445,9 +448,17 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     )
     parser.add_argument("--device", choices=["cpu", "cuda"], default=None,
                         help="with --backend batched: cpu or cuda (default cpu)")  # fmt: skip
+    parser.add_argument(
+        "--batchable-last",
+        action="store_true",
+        help="run the Catch sweeps the batched backend takes after every other sweep (on a CPU, "
+        "leaving them to a GPU while it runs what a GPU could not batch)",
+    )
     options = parser.parse_args(argv)
     if options.device is not None and options.backend != "batched":
         parser.error("--device needs --backend batched")
+    if options.batchable_last and options.backend == "batched":
+        parser.error("--batchable-last is for the process backend; --backend batched runs them")
     options.device = options.device or "cpu"
     return options
 
@@ -483,6 +494,17 @@ def on_backend(items: list[Item], backend: str, device: str) -> list[Item]:
     return moved
 
 
+def passes(items: list[Item], batchable_last: bool) -> list[list[tuple[Item, list[Sweep]]]]:
+    """The order the sweeps run in: the plan's, or with batchable_last two passes over the
+    items, the sweeps the batched backend takes in the second."""
+    if not batchable_last:
+        return [[(item, list(item.sweeps)) for item in items]]
+    return [
+        [(item, [s for s in item.sweeps if batchable(s) == second]) for item in items]
+        for second in (False, True)
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     options = parse_args(sys.argv[1:] if argv is None else argv)
     options.plan = options.plan.resolve()
@@ -499,37 +521,41 @@ def main(argv: list[str] | None = None) -> int:
             print("error: --device cuda: torch sees no CUDA device here; use --device cpu",
                   file=sys.stderr)  # fmt: skip
             return 2
+    order = passes(items, options.batchable_last)
     if options.dry_run:
-        for item in items:
-            for sweep in item.sweeps:
-                print(shlex.join(["python", *sweep.command]))
-            if item.draw is not None:
-                print(shlex.join(["python", *item.draw]))
+        for one_pass in order:
+            for item, sweeps in one_pass:
+                for sweep in sweeps:
+                    print(shlex.join(["python", *sweep.command]))
+                if item.draw is not None and sweeps:
+                    print(shlex.join(["python", *item.draw]))
         return 0
     if options.status:
         write_progress(items, options.plan)
         print((options.plan.parent / "PROGRESS.md").read_text(), end="")
         return 0
     failed = False
-    for item in items:
-        ran = False
-        for sweep in item.sweeps:
-            before = len(read_rows(sweep.out))
-            if before >= sweep.runs:
-                continue
-            ran = True
-            print(f"== {item.id}: {sweep.out}: to {sweep.runs} runs", flush=True)
-            code = run_logged(options.plan, item, sweep)
-            write_progress(items, options.plan)
-            if code in (2, 130):
-                return code
-            failed |= code != 0
-            if item.draw is not None:
+    ran: set[str] = set()
+    for number, one_pass in enumerate(order, 1):
+        for item, sweeps in one_pass:
+            for sweep in sweeps:
+                before = len(read_rows(sweep.out))
+                if before >= sweep.runs:
+                    continue
+                ran.add(item.id)
+                print(f"== {item.id}: {sweep.out}: to {sweep.runs} runs", flush=True)
+                code = run_logged(options.plan, item, sweep)
+                write_progress(items, options.plan)
+                if code in (2, 130):
+                    return code
+                failed |= code != 0
+                if item.draw is not None:
+                    failed |= execute(item.draw)[0] != 0
+            # an item whose runs were all done before (or came back from another machine) is
+            # drawn once a start, so that its figure's results.csv is never left behind its runs
+            if (number == len(order) and item.draw is not None and item.id not in ran
+                    and any(read_rows(s.out) for s in item.sweeps)):  # fmt: skip
                 failed |= execute(item.draw)[0] != 0
-        # an item whose runs were all done before (or came back from another machine) is drawn
-        # once a start, so that its figure's results.csv is never left behind its runs
-        if item.draw is not None and not ran and any(read_rows(s.out) for s in item.sweeps):
-            failed |= execute(item.draw)[0] != 0
     finished = write_progress(items, options.plan)
     print((options.plan.parent / "PROGRESS.md").read_text(), end="")
     return 1 if failed else 0 if finished else 1
