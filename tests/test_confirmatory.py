@@ -112,7 +112,7 @@ def test_the_plans_items_are_the_campaigns_with_new_seeds_and_paired_lines():
         for sweep in item.sweeps:
             command = sweep.command
             seeds[sweep.out] = int(command[command.index("--seed") + 1])
-            assert command[command.index("--total-timesteps") + 1] in ("1000000", "2000000")
+            assert command[command.index("--total-timesteps") + 1] in ("250000", "2000000")
             if item.kind == "sweep":  # float32, as the thesis ran
                 assert command[-2:] == ["--precision", "fp32"] or "fp32" in command
     assert set(seeds.values()) == {7500, 7600, 7700, 7800}
@@ -124,9 +124,9 @@ def test_the_compute_table_counts_each_items_runs_at_its_committed_rate():
     item = next(i for i in data["item"] if i["id"] == "c3-glpq-searing")
     rows = [r for r in campaign.read_rows(ROOT / item["rate_from"][0]) if r["status"] == "ok"]
     per_step = np.mean([float(r["wall_time_s"]) / float(r["final_step"]) for r in rows])
-    assert confirmatory.cpu_hours(item) == pytest.approx(8 * 1_000_000 * per_step / 3600)
+    assert confirmatory.cpu_hours(item) == pytest.approx(8 * 250_000 * per_step / 3600)
     table = confirmatory.compute(data)
-    assert "| c3-glpq-searing | 8 x 1 | 1,000,000 |" in table and "| **all** |" in table
+    assert "| c3-glpq-searing | 8 x 1 | 250,000 |" in table and "| **all** |" in table
 
 
 def write_line(folder, values, statuses=None):
