@@ -187,3 +187,17 @@ def test_a_bad_plan_is_one_line_and_exit_2(tmp_path):
     done = run_main(confirmatory.main, [str(short), "--check"])
     assert done.returncode == 2 and done.stderr.strip() == f"{short}: no 'spread_from'"
     assert "Traceback" not in done.stderr
+
+
+def test_the_campaigns_progress_estimates_the_studys_cpu_hours_from_its_rate_from():
+    """PROGRESS.md's "CPU-hours left" for a study's plan (no cpu_hours_per_run) is the compute
+    table's, item by item, until a line has runs of its own."""
+    items = campaign.load_plan(PLAN)
+    table, _ = campaign.progress(items)
+    planned = {item["id"]: item for item in plan()["item"]}
+    for item in items:
+        if all(not campaign.read_rows(sweep.out) for sweep in item.sweeps):
+            row = next(line for line in table.splitlines() if line.startswith(f"| {item.id}:"))
+            left = float(row.split(" | ")[3])
+            wanted = confirmatory.cpu_hours(planned[item.id])
+            assert left == pytest.approx(wanted, abs=0.051), item.id

@@ -37,7 +37,8 @@ After each sweep, and with --status, the progress (runs done of the plan, CPU-ho
 the plan's new runs, an estimate of those left, and the runs begun but unfinished) is written to
 PROGRESS.md beside the plan.
 CPU-hours are wall time x workers, from the sweeps' results.csv; a run not yet made is
-estimated from its line's finished runs, or from the item's `cpu_hours_per_run`, less the share
+estimated from its line's finished runs, or from the item's `cpu_hours_per_run` (or its
+`rate_from` lines' committed steps/s, as a3c_tools.confirmatory estimates them), less the share
 of its steps that its checkpoint holds where it has begun (here or on another machine).
 
 Where the runs run is the command's, not the plan's (but for a sweep item's line that names
@@ -226,6 +227,10 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
     if not sweeps:
         raise DataError(f"{where} has no sweep")
     per_run = entry.get("cpu_hours_per_run")
+    if per_run is None and "rate_from" in entry:  # a study's plan: its estimate, run by run
+        from a3c_tools.confirmatory import cpu_hours
+
+        per_run = cpu_hours(entry) / (len(sweeps) * max(sweep.runs for sweep in sweeps))
     draw = None
     if kind == "atari":  # the figure's results.csv is what the claims page's Atari rows read
         draw = ["-m", "a3c_tools.atari_figures", entry["figure"], "--out", entry["out"],

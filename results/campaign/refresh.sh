@@ -1,18 +1,23 @@
 #!/usr/bin/env bash
-# Regenerates every committed file that the campaign's new runs feed, so that a commit of its
-# results.csv rows carries them: the claims page and its forest plot, the chapter 8 summary
-# (summary.txt, curves.csv, curves.png) and PROGRESS.md. Tests hold the claims page and the
+# Regenerates every committed file that the campaigns' new runs feed (this plan's and the
+# confirmatory study's, results/confirmatory/plan.toml), so that a commit of their results.csv
+# rows carries them: the claims page and its forest plot, the chapter 8 summary (summary.txt,
+# curves.csv, curves.png) and each plan's PROGRESS.md. Tests hold the claims page and the
 # summary to their inputs (test_thesis_claims, test_tools_analysis). From the repository root:
 #     bash results/campaign/refresh.sh [FROM] && git add docs results
 # FROM: a copy of the repository the campaign runs in (a git worktree pinned at a commit, so
-# that edits here never reach a run in flight): first SWEEPS.tsv, and every line whose
+# that edits here never reach a run in flight): first each plan's SWEEPS.tsv, and every line whose
 # results.csv there holds more rows than here (the campaign only adds rows), with its
 # sweep.json and its runs' evaluations.csv files (in runs/, not committed, but read by the
 # summary to gather curves.csv), are copied from it, so that no curve is lost with its folder.
 set -euo pipefail
 if [ $# -ge 1 ]; then
     from=$(cd "$1" && pwd)
-    cp "$from/results/campaign/SWEEPS.tsv" results/campaign/SWEEPS.tsv
+    for plan in campaign confirmatory; do
+        if [ -f "$from/results/$plan/SWEEPS.tsv" ]; then
+            cp "$from/results/$plan/SWEEPS.tsv" "results/$plan/"
+        fi
+    done
     while IFS= read -r table; do
         line=$(dirname "${table#"$from"/}")
         here=0
@@ -31,4 +36,5 @@ fi
 python -m a3c_tools.thesis_claims -o docs/claims.md
 python -m a3c_tools.future_work_summary > results/future_work_catch/summary.txt
 python -m a3c_tools.campaign results/campaign/plan.toml --status
+python -m a3c_tools.campaign results/confirmatory/plan.toml --status > /dev/null
 python -m a3c_tools.confirmatory results/confirmatory/plan.toml --check
