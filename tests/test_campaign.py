@@ -555,3 +555,24 @@ def test_batchable_last_runs_what_a_gpu_could_not_batch_first(tmp_path, monkeypa
     refused = run_main(campaign.main, [str(plan), "--batchable-last", "--backend", "batched"])
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
     assert "--batchable-last is for the process backend" in refused.stderr
+
+
+def test_a_rate_from_without_committed_runs_is_a_bad_plan(tmp_path):
+    ff = ROOT / "agents" / "a3c_ff.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "s1"
+        title = "a new line"
+        kind = "sweep"
+        runs = 2
+        seed = 7500
+        total_timesteps = 60
+        lines = [{{ script = "{ff}", out = "{tmp_path / "ff"}" }}]
+        rate_from = ["{tmp_path / "nowhere"}"]
+        """,
+    )
+    result = run_main(campaign.main, [str(plan), "--status"])
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "rate_from: no committed runs' rate" in result.stderr

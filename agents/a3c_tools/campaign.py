@@ -230,7 +230,10 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
     if per_run is None and "rate_from" in entry:  # a study's plan: its estimate, run by run
         from a3c_tools.confirmatory import cpu_hours
 
-        per_run = cpu_hours(entry) / (len(sweeps) * max(sweep.runs for sweep in sweeps))
+        try:
+            per_run = cpu_hours(entry) / (len(sweeps) * max(sweep.runs for sweep in sweeps))
+        except (OSError, KeyError, ValueError, ZeroDivisionError) as error:
+            raise DataError(f"{where}: rate_from: no committed runs' rate ({error})") from None
     draw = None
     if kind == "atari":  # the figure's results.csv is what the claims page's Atari rows read
         draw = ["-m", "a3c_tools.atari_figures", entry["figure"], "--out", entry["out"],
