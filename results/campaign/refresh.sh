@@ -6,16 +6,20 @@
 # summary to their inputs (test_thesis_claims, test_tools_analysis). From the repository root:
 #     bash results/campaign/refresh.sh [FROM] && git add docs results
 # FROM: a copy of the repository the campaign runs in (a git worktree pinned at a commit, so
-# that edits here never reach a run in flight): first each plan's SWEEPS.tsv, and every line whose
+# that edits here never reach a run in flight): first each plan's SWEEPS.tsv where FROM's is
+# ahead, and every line whose
 # results.csv there holds more rows than here (the campaign only adds rows), with its
 # sweep.json and its runs' evaluations.csv files (in runs/, not committed, but read by the
 # summary to gather curves.csv), are copied from it, so that no curve is lost with its folder.
 set -euo pipefail
 if [ $# -ge 1 ]; then
     from=$(cd "$1" && pwd)
-    for plan in campaign confirmatory; do
-        if [ -f "$from/results/$plan/SWEEPS.tsv" ]; then
-            cp "$from/results/$plan/SWEEPS.tsv" "results/$plan/"
+    for plan in campaign confirmatory; do  # a log only grows: the longer (or newer) copy wins
+        log=results/$plan/SWEEPS.tsv
+        [ -f "$from/$log" ] || continue
+        if [ ! -f "$log" ] || [ "$(wc -l < "$from/$log")" -gt "$(wc -l < "$log")" ] ||
+            { [ "$(wc -l < "$from/$log")" -eq "$(wc -l < "$log")" ] && [ "$from/$log" -nt "$log" ]; }; then
+            cp "$from/$log" "$log"
         fi
     done
     while IFS= read -r table; do
