@@ -201,3 +201,17 @@ def test_the_campaigns_progress_estimates_the_studys_cpu_hours_from_its_rate_fro
             left = float(row.split(" | ")[3])
             wanted = confirmatory.cpu_hours(planned[item.id])
             assert left == pytest.approx(wanted, abs=0.051), item.id
+
+
+def test_the_studys_own_runs_do_not_count_as_used_seeds(tmp_path):
+    """The seed check reads every committed results.csv but the study's own output folders:
+    its runs, once committed, use its seeds; any other run with one of them is a clash."""
+    for folder, seed in (("own/ff", 7800), ("other", 7600)):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "results.csv").write_text(f"run_id,seed\nrun-0000,{seed}\n")
+    seeds = confirmatory.committed_seeds(tmp_path, own=(tmp_path / "own",))
+    assert seeds == {7600}
+    assert confirmatory.committed_seeds(tmp_path) == {7600, 7800}
+    own = confirmatory.output_folders(plan())
+    assert ROOT / "results" / "confirmatory" / "atari" in own
+    assert ROOT / "results" / "confirmatory" / "catch" / "ff_as_run" in own

@@ -216,16 +216,29 @@ def plan_untestable(entry: dict, plan: dict) -> Untestable:
     return Untestable(entry["id"], int(d.size), spread, level, runs, cap, hours)
 
 
-def committed_seeds(root: Path = ROOT / "results") -> set[int]:
-    """Every run seed in a committed results.csv under `root` (its `seed` column)."""
+def committed_seeds(root: Path = ROOT / "results", own: tuple[Path, ...] = ()) -> set[int]:
+    """Every run seed in a committed results.csv under `root` (its `seed` column), but for the
+    tables under `own` (the study's output folders: its own runs use its seeds)."""
     seeds: set[int] = set()
     for table in root.rglob("results.csv"):
+        if any(table.is_relative_to(folder) for folder in own):
+            continue
         with open(table, newline="") as f:
             for row in csv.DictReader(f):
                 value = (row.get("seed") or "").strip()
                 if value.lstrip("-").isdigit():
                     seeds.add(int(value))
     return seeds
+
+
+def output_folders(plan: dict) -> tuple[Path, ...]:
+    """The folders the plan's items write their runs into."""
+    folders = []
+    for item in plan.get("item", []):
+        if "out" in item:  # an atari item: its figure's folder
+            folders.append(ROOT / item["out"])
+        folders += [ROOT / line["out"] for line in item.get("lines", []) if isinstance(line, dict)]
+    return tuple(folders)
 
 
 def plan_seeds(plan: dict) -> set[int]:
@@ -291,7 +304,7 @@ def problems(plan: dict, plan_path: Path) -> list[str]:
             computed = f"{done.runs}, {done.power:.2f}, {done.level:.5f}, {hours}"
             out.append(f"{entry['id']} (not testable): the plan says runs, power, level, "
                        f"CPU-hours {stated}, the committed runs give {computed}")  # fmt: skip
-    used = sorted(plan_seeds(plan) & committed_seeds())
+    used = sorted(plan_seeds(plan) & committed_seeds(own=output_folders(plan)))
     if used:
         out.append(f"run seeds already used by committed runs: {used[:10]}")
     return out
