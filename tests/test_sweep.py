@@ -1054,3 +1054,19 @@ def test_a_figure_whose_sweep_has_a_run_in_use_is_drawn_and_exits_3(monkeypatch,
     drawn = []
     assert figure_sweeps.run_sweeps(lines, [2], "run", lambda: drawn.append(1)) == 3
     assert drawn == [1] and "a run in use elsewhere, not yet done: other" in capsys.readouterr().err
+
+
+def test_a_signal_twice_at_once_is_one_stop_request(monkeypatch):
+    """A SIGTERM to the process group reaches a campaign's sweep directly and passed on by the
+    campaign, within milliseconds: that is one request (stop the runs cleanly, so that they
+    write their checkpoints), where a second Ctrl-C seconds later kills them."""
+    now = [100.0]
+    monkeypatch.setattr(sweep.time, "monotonic", lambda: now[0])
+    stop = sweep.StopRequests()
+    stop._handle(signal.SIGTERM, None)
+    now[0] += 0.01
+    stop._handle(signal.SIGTERM, None)
+    assert stop.level == 1
+    now[0] += sweep.StopRequests.SAME_STOP_S
+    stop._handle(signal.SIGINT, None)
+    assert stop.level == 2

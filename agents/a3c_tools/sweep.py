@@ -80,9 +80,11 @@ concurrency may change between starts.
 
 Ctrl-C (SIGINT) or SIGTERM stops the sweep: no new runs start, each running run gets SIGINT (the
 scripts checkpoint and exit) and is not recorded, so it reruns on the next start; exit code 130.
-A second Ctrl-C kills the runs at once. Were the sweep killed outright, its runs get SIGTERM
-from the kernel (Linux) and stop in the same way. On Ray, the sweep cancels its tasks: a running
-task stops its run with SIGINT, a queued one is dropped, and a second Ctrl-C kills the tasks.
+A second Ctrl-C (2 s or more after the first: a signal to the whole process group that also
+reaches it through a campaign is one request) kills the runs at once. Were the sweep killed
+outright, its runs get SIGTERM from the kernel (Linux) and stop in the same way. On Ray, the
+sweep cancels its tasks: a running task stops its run with SIGINT, a queued one is dropped, and
+a second Ctrl-C kills the tasks.
 
 Backends.
 - local (default): runs are subprocesses on this machine, started in order while the CPUs they
@@ -843,10 +845,16 @@ def _write_atomically(path: Path, text: str) -> None:
 # Backends
 # ------------------------------------------------------------------------------------------------
 class StopRequests:
-    """Counts SIGINT/SIGTERM: 1 = stop the runs cleanly, 2 = kill them."""
+    """Counts SIGINT/SIGTERM: 1 = stop the runs cleanly, 2 = kill them. A second signal within
+    SAME_STOP_S of the first is the same request: a SIGTERM to the whole process group (a
+    session's or a service's end) reaches the sweep twice at once, directly and passed on by a
+    campaign, and must not kill runs that are writing their checkpoints."""
+
+    SAME_STOP_S = 2.0
 
     def __init__(self) -> None:
         self.level = 0
+        self.first = 0.0  # time.monotonic() of the first request
         self.previous = {}
 
     def __enter__(self) -> StopRequests:
@@ -859,7 +867,10 @@ class StopRequests:
             signal.signal(signum, handler)
 
     def _handle(self, signum, _frame) -> None:
+        if self.level == 1 and time.monotonic() - self.first < self.SAME_STOP_S:
+            return
         self.level += 1
+        self.first = self.first or time.monotonic()
         name = signal.Signals(signum).name
         if self.level == 1:
             print(
