@@ -436,17 +436,15 @@ def test_a_line_whose_sweep_json_is_not_an_object_is_a_bad_plan(tmp_path):
     )
 
 
-def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
-    """--backend batched: a Catch sweep of a script the batched backend takes runs batched (its
-    runs' closing lines say so, SWEEPS.tsv names the device); a future-work line (a script it
-    does not take) and an Atari item stay on the process backend; --device without it is
-    refused in one line."""
+def ff_and_online_plan(tmp_path: Path) -> Path:
+    """A plan of a sweep item "s1" with two new lines, A3C FF into tmp_path/ff (a Catch sweep
+    the batched backend takes) and online LWS into tmp_path/online (a future-work script it
+    does not take), then the Atari item "b"."""
     ff, online = (
         ROOT / "agents" / "a3c_ff.py",
         ROOT / "agents" / "future_work" / "a3c_lws_online.py",
     )
-    new = tmp_path / "ff"
-    plan = write_plan(
+    return write_plan(
         tmp_path,
         f"""
         [[item]]
@@ -458,12 +456,22 @@ def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
         total_timesteps = 60
         samples = ["learning-rate=loguniform:1e-4:1e-2"]
         flags = ["--eval-interval", "30", "--eval-episodes", "3", "--t-max", "5"]
-        lines = [{{ script = "{ff}", out = "{new}" }},
+        lines = [{{ script = "{ff}", out = "{tmp_path / "ff"}" }},
                  {{ script = "{online}", out = "{tmp_path / "online"}" }}]
 
         {pong_item(tmp_path / "atari", ["vf1.0"])}
         """,
     )
+
+
+def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
+    """--backend batched: a Catch sweep of a script the batched backend takes runs batched (its
+    runs' closing lines say so, SWEEPS.tsv names the device); a future-work line (a script it
+    does not take) and an Atari item stay on the process backend; --device without it is
+    refused in one line."""
+    ff = ROOT / "agents" / "a3c_ff.py"
+    new = tmp_path / "ff"
+    plan = ff_and_online_plan(tmp_path)
     printed = run_main(campaign.main, [str(plan), "--dry-run", "--backend", "batched"]).stdout
     commands = [shlex.split(line) for line in printed.splitlines()]
     batched = ["--backend", "batched", "--device", "cpu"]
@@ -520,24 +528,7 @@ def test_batchable_last_runs_what_a_gpu_could_not_batch_first(tmp_path, monkeypa
     """--batchable-last: the Catch sweeps the batched backend takes run after every other sweep
     (here the future-work line of the same item and the Atari item after it); without it the
     plan's order; with --backend batched it is refused in one line."""
-    ff = ROOT / "agents" / "a3c_ff.py"
-    online = ROOT / "agents" / "future_work" / "a3c_lws_online.py"
-    plan = write_plan(
-        tmp_path,
-        f"""
-        [[item]]
-        id = "s1"
-        title = "new lines"
-        kind = "sweep"
-        runs = 2
-        seed = 7500
-        total_timesteps = 60
-        lines = [{{ script = "{ff}", out = "{tmp_path / "ff"}" }},
-                 {{ script = "{online}", out = "{tmp_path / "online"}" }}]
-
-        {pong_item(tmp_path / "atari", ["vf1.0"])}
-        """,
-    )
+    plan = ff_and_online_plan(tmp_path)
     ran = []
     monkeypatch.setattr(
         campaign, "run_logged", lambda plan, item, sweep: ran.append(sweep.out) or 0

@@ -867,12 +867,13 @@ class StopRequests:
             signal.signal(signum, handler)
 
     def _handle(self, signum, _frame) -> None:
-        if self.level == 1 and time.monotonic() - self.first < self.SAME_STOP_S:
+        now = time.monotonic()
+        if self.level == 1 and now - self.first < self.SAME_STOP_S:
             return
         self.level += 1
-        self.first = self.first or time.monotonic()
         name = signal.Signals(signum).name
         if self.level == 1:
+            self.first = now
             print(
                 f"{name}: stopping the running runs (they rerun next time); again to kill them",
                 flush=True,
