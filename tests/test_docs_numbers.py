@@ -1,6 +1,8 @@
 """One number per fact: a headline figure (the README's test count and times, the default run's
 time, the fast setting's time to 0.9) has one value wherever the README, a docs page or the
-summary at the top of results/test_tiers/COMMAND.txt states it."""
+summary at the top of results/test_tiers/COMMAND.txt states it; the README's Atari columns and
+the Atari prose (docs/atari.md's thesis figures, the agent pages' Atari sections) state only what
+the committed runs of results/atari_figures give."""
 
 import re
 from pathlib import Path
@@ -136,3 +138,125 @@ def test_the_readmes_atari_columns_are_the_committed_runs_means():
                 continue
             digits = 1 if game == "Breakout" else 0  # the table's rounding
             assert cell == f"{means[key]:.{digits}f}", (script, form, game, cell, means[key])
+
+
+# The Atari prose: docs/atari.md's section on the thesis's Atari figures and each agent page's
+# "## Atari" section restate scores of the committed runs of results/atari_figures by hand. Every
+# score they state must be one those runs give: a seed's evaluation, a line's mean at an
+# evaluation step, a paired difference of two lines of a game with its 95% t interval, or the
+# game's random play and its threshold (random play plus 5% of the human - random range).
+AGENT_PAGES = sorted((ROOT / "docs" / "agents").glob("a3c_*.md"))
+ATARI_PROSE = {
+    "docs/atari.md": "## The thesis's Atari figures as one command each",
+    **{f"docs/agents/{page.name}": "## Atari" for page in AGENT_PAGES},
+}
+# what is not a score: code spans, link targets, and figure, section and equation numbers
+NOT_SCORES = re.compile(
+    r"`[^`]*`|\]\([^)]*\)|\b(?:Figures?|[Ss]ections?|eq\.) \d+\.\d+(?:(?:, | and )\d+\.\d+)*"
+)
+# a number with a decimal point, not a step count (1.5M), ratio (1.6x) or percentage
+STATED = re.compile(r"(?<![\w.,])([+-]?\d{1,3}(?:,\d{3})*\.\d+)(?![\d.]|M\b|x\b|%)")
+# settings, not scores: Figure 6.10's lines are named by their lambda_V (1.0, 0.5; Algorithm 1's
+# 0.5 and 0.25), and RMSprop's eps (0.1); a score stated as one of these is not checked
+SETTINGS = {"1.0", "0.5", "0.25", "0.1"}
+
+
+def atari_prose_sections() -> dict[str, str]:
+    """Each page's Atari section (from its heading to the next of its level), one line."""
+    sections = {}
+    for name, heading in ATARI_PROSE.items():
+        text = (ROOT / name).read_text()
+        start = text.index(heading) if heading in text else None
+        if start is None:
+            continue
+        end = text.find("\n## ", start + len(heading))
+        section = NOT_SCORES.sub(" ", text[start : end if end > 0 else None])
+        sections[name] = " ".join(section.split())
+    return sections
+
+
+def derivable_atari_scores() -> tuple[list[float], list[tuple[float, float, float]]]:
+    """Every score the committed Atari figure runs give (see above), unrounded, and every paired
+    comparison's (mean difference, low, high)."""
+    import csv
+
+    import numpy as np
+    from a3c_tools.paired import interval, random_play
+
+    values: list[float] = []
+    triples: list[tuple[float, float, float]] = []
+    finals: dict[tuple[str, str], dict[int, float]] = {}  # (game, figure/line) -> seed -> final
+    for evaluations in sorted((ROOT / "results/atari_figures").glob("*/*/*/evaluations.csv")):
+        figure, game, line = evaluations.parent.relative_to(ROOT / "results/atari_figures").parts
+        by_step: dict[int, list[float]] = {}
+        last: dict[int, tuple[int, float]] = {}  # seed -> its final evaluation (step, score)
+        with open(evaluations) as f:
+            for row in csv.DictReader(f):
+                step, score = int(row["global_step"]), float(row["mean_return"])
+                by_step.setdefault(step, []).append(score)
+                last[int(row["seed"])] = max(last.get(int(row["seed"]), (-1, 0.0)), (step, score))
+                values.append(score)
+        values += [sum(v) / len(v) for v in by_step.values()]
+        finals[(game, f"{figure}/{line}")] = {seed: score for seed, (_, score) in last.items()}
+    for (game, a), a_finals in finals.items():
+        for (other_game, b), b_finals in finals.items():
+            seeds = sorted(a_finals.keys() & b_finals.keys())
+            if other_game != game or a == b or len(seeds) < 2:
+                continue
+            differences = np.array([a_finals[s] - b_finals[s] for s in seeds])
+            triples.append((float(differences.mean()), *interval(differences)))
+            values += triples[-1]
+    for game in {game for game, _ in finals}:
+        random, slack = random_play(f"{game}NoFrameskip-v4")
+        values += [random, random + slack]
+    return values, triples
+
+
+# a paired comparison as the prose states it: "+7.0 [-17.2, +31.1]"
+INTERVAL = re.compile(r"([+-]\d[\d,]*\.\d+) \[([+-]\d[\d,]*\.\d+), ([+-]\d[\d,]*\.\d+)\]")
+
+
+def rounds_to(value: float, stated: str) -> bool:
+    """Whether value, rounded to the decimals stated has, is the stated number."""
+    decimals = len(stated.split(".")[1])
+    return abs(round(value, decimals) - float(stated.replace(",", ""))) < 10**-decimals / 2
+
+
+def underivable(text: str, derivable: tuple[list, list]) -> list[str]:
+    """The scores stated in text that no value gives at the decimals they are stated to, and the
+    intervals stated that are not one comparison's (its mean, low and high together)."""
+    values, triples = derivable
+    wrong = [
+        stated
+        for stated in STATED.findall(text)
+        if stated not in SETTINGS and not any(rounds_to(v, stated) for v in values)
+    ]
+    for match in INTERVAL.finditer(text):
+        if not any(all(map(rounds_to, t, match.groups())) for t in triples):
+            wrong.append(match.group(0))
+    return wrong
+
+
+def test_the_atari_prose_states_only_scores_the_committed_runs_give():
+    sections = atari_prose_sections()
+    assert set(sections) >= {"docs/atari.md", "docs/agents/a3c_glpq.md"}, "a section moved"
+    values = derivable_atari_scores()
+    stated = sum(len(STATED.findall(text)) for text in sections.values())
+    assert stated > 100, f"only {stated} scores found: the pattern no longer reads the prose"
+    wrong = {name: w for name, text in sections.items() if (w := underivable(text, values))}
+    assert not wrong, f"scores no committed Atari run gives (stale or mistyped): {wrong}"
+
+
+def test_a_mistyped_atari_score_is_found():
+    derivable = derivable_atari_scores()
+    glpq = atari_prose_sections()["docs/agents/a3c_glpq.md"]
+    assert underivable(glpq, derivable) == []
+    assert "71.9" in glpq
+    assert underivable(glpq.replace("71.9", "71.8", 1), derivable) == ["71.8"]
+    atari = atari_prose_sections()["docs/atari.md"]
+    assert "-20.0 [-22.4, -17.7]" in atari  # Breakout, LWS - FF: each number alone is derivable
+    assert underivable(atari.replace("-20.0 [-22.4", "-20.1 [-22.4", 1), derivable) == [
+        "-20.1 [-22.4, -17.7]"
+    ]
+    not_scores = "Figures 6.9 and 7.8 at 1.5M steps, 1.6x faster, 5.5% of it, `--vf-coef 2.5`"
+    assert underivable(NOT_SCORES.sub(" ", not_scores), derivable) == []
