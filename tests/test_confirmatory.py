@@ -175,8 +175,51 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     )
     [_, _, row] = thesis_claims.confirmatory(path)
     assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
-    write_line(tmp_path / "same", base[:3])
+    write_line(tmp_path / "same", base[:3])  # 6 + 3 of the 12 runs in, and no look
+    assert thesis_claims.confirmatory(path)[2].endswith("| - | **under way: 9 of 12 runs in** |")
+    assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 12 runs in")
+    for folder in ("ff", "same"):
+        (tmp_path / folder / "results.csv").unlink()
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **planned, not yet run** |")
+    assert thesis_claims.confirmatory_status(path).endswith(": planned, not yet run")
+
+
+def test_the_runs_in_are_counted_from_run_ids_alone_each_line_once(tmp_path, monkeypatch):
+    """While the study runs the page counts its runs without reading a score (a table with no
+    score column counts the same), runs past a claim's own are not its, an Atari run counts
+    once it reached the steps, and a line two claims read counts once in the heading."""
+    from a3c_tools import thesis_claims
+
+    monkeypatch.setattr(confirmatory, "ROOT", tmp_path)
+    (tmp_path / "ff").mkdir()
+    (tmp_path / "ff" / "results.csv").write_text(
+        "run_id,status\n" + "".join(f"run-{i:04d},ok\n" for i in range(7))
+    )
+    write_line(tmp_path / "lpq", [0.5] * 2)
+    assert confirmatory.runs_in({"baseline": "ff", "line": "lpq"}, 5) == {("ff",): 5, ("lpq",): 2}
+    assert confirmatory.runs_in({"baseline": "ff", "lines": ["lpq", "none"]}, 8) == {
+        ("ff",): 7, ("lpq",): 2, ("none",): 0
+    }  # fmt: skip
+    figure = tmp_path / "atari" / "fig6.9" / "Breakout"
+    (figure / "ff").mkdir(parents=True)
+    (figure / "ff" / "results.csv").write_text(
+        "run_id,status,final_step,seed\nrun-0000,ok,2000080,7800\nrun-0001,ok,1000000,8800\n"
+        "run-0002,ok,2000080,9800\nrun-0003,ok,2000080,1\n"
+    )  # run 1 stopped short; seed 1 is not the study's
+    atari = {"atari": "atari/fig6.9", "game": "Breakout", "baseline": "ff", "line": "lws",
+             "seed": 7800, "steps": 2000000}  # fmt: skip
+    key = ("atari/fig6.9", "Breakout")
+    assert confirmatory.runs_in(atari, 10) == {(*key, "ff"): 2, (*key, "lws"): 0}
+    assert confirmatory.runs_in(atari, 2) == {(*key, "ff"): 1, (*key, "lws"): 0}
+    path = tmp_path / "plan.toml"
+    claim = ('[[claim]]\nid = "{}"\nclaim = "c"\nexperiment = "e"\nexpect = "better"\n'
+             'effect = 0.1\neffect_basis = "b"\nruns = {}\npower = 0.9\nlevel = 0.05\n'
+             'test = {{ baseline = "ff", line = "{}" }}\n')  # fmt: skip
+    path.write_text(
+        "[study]\nalpha = 0.05\n" + claim.format("A", 4, "lpq") + claim.format("B", 8, "x")
+    )
+    # ff: 8 needed (B's), 7 in; lpq: 4 needed, 2 in; x: 8 needed, none in
+    assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 20 runs in")
 
 
 def test_a_bad_plan_is_one_line_and_exit_2(tmp_path):

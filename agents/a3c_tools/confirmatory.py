@@ -18,7 +18,8 @@ is new when no committed results.csv under results/ has it in its `seed` column.
 
 The analysis is fixed here too (`outcomes`): one look, once every claim's `test` runs are in,
 the same paired t test as the claims page's, Holm over the family, a verdict where the adjusted
-p is below alpha; the claims page shows it (until then, "planned, not yet run").
+p is below alpha; the claims page shows it (until then, how many of each claim's runs are in:
+`runs_in`, which counts run ids and reads no score).
 
 A `[[not_testable]]` entry is a claim left out of the family because no affordable number of
 runs gives it power: the plan states, and `--check` holds, the runs per line its test would
@@ -87,6 +88,32 @@ def complete(spec: dict, runs: int) -> bool:
         if not {f"run-{i:04d}" for i in range(runs)} <= done:
             return False
     return True
+
+
+def runs_in(spec: dict, runs: int) -> dict[tuple[str, ...], int]:
+    """How many of the runs a claim's test needs are in, line by line (the line's folder, or its
+    figure, game and name), counted from the run ids and seeds alone: no score is read, so the
+    count can be shown while the study runs without looking at its data."""
+    if "atari" in spec:  # each line's own folder (the figure's table is drawn after a sweep)
+        wanted = {int(spec["seed"]) + STRIDE * i for i in range(runs)}
+        seeds: dict[str, set[int]] = {spec["baseline"]: set(), spec["line"]: set()}
+        for line, found in seeds.items():
+            table = ROOT / spec["atari"] / spec["game"] / line / "results.csv"
+            if table.is_file():
+                with open(table, newline="") as f:
+                    rows = list(csv.DictReader(f))
+                steps = int(spec["steps"])
+                found |= {int(row["seed"]) for row in rows if int(row["seed"]) in wanted
+                          and int(row.get("final_step") or 0) >= steps}  # fmt: skip
+        return {(spec["atari"], spec["game"], line): len(s) for line, s in seeds.items()}
+    counts = {}
+    for folder in [spec["baseline"], *spec.get("lines", [spec.get("line")])]:
+        table, done = ROOT / folder / "results.csv", set()
+        if table.is_file():
+            with open(table, newline="") as f:
+                done = {row["run_id"] for row in csv.DictReader(f)}
+        counts[(folder,)] = len(done & {f"run-{i:04d}" for i in range(runs)})
+    return counts
 
 
 @dataclass(frozen=True)

@@ -574,15 +574,19 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
     the claims the plan left out as not testable, with the runs and CPU-hours they would need."""
     if not plan_path.is_file():
         return []
-    from a3c_tools.confirmatory import outcomes
+    from a3c_tools.confirmatory import outcomes, runs_in
 
     plan = tomllib.loads(plan_path.read_text())
     found = outcomes(plan)  # None until every claim's runs are in: one look
+    progress = [runs_in(claim["test"], claim["runs"]) for claim in plan.get("claim", [])]
     out = ["| id | primary claim | experiment | effect to detect | runs per line (power) | "
            "effect [95% t interval], p (Holm) | verdict |",
            "|---|---|---|---|---|---|---|"]  # fmt: skip
     for i, claim in enumerate(plan.get("claim", [])):
         result, verdict = "-", "**planned, not yet run**"
+        done, needed = sum(progress[i].values()), claim["runs"] * len(progress[i])
+        if done:  # counted from run ids, no score read: the one look waits for all of them
+            verdict = f"**under way: {done} of {needed} runs in**"
         if found is not None:
             o = found[i]
             f = ".3f" if "atari" not in claim["test"] else ".1f"
@@ -608,6 +612,25 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
                 f"{entry['max_runs']} runs a line we can afford give {entry['power']:.0%}."
             )
     return out
+
+
+def confirmatory_status(plan_path: Path = CONFIRMATORY) -> str:
+    """The confirmatory section's heading: planned, under way (how many of the study's runs are
+    in, each line's counted once however many claims read it; run ids only), or its result."""
+    from a3c_tools.confirmatory import outcomes, runs_in
+
+    plan = tomllib.loads(plan_path.read_text())
+    if outcomes(plan) is not None:
+        return "The confirmatory study"
+    lines: dict[tuple[str, ...], tuple[int, int]] = {}  # line -> (runs needed, runs in)
+    for claim in plan.get("claim", []):
+        for line, done in runs_in(claim["test"], claim["runs"]).items():
+            needed, before = lines.get(line, (0, 0))
+            lines[line] = (max(needed, claim["runs"]), max(before, done))
+    done, needed = sum(d for _, d in lines.values()), sum(n for n, _ in lines.values())
+    if not done:
+        return "The confirmatory study: planned, not yet run"
+    return f"The confirmatory study: under way, {done} of its {needed} runs in"
 
 
 # The forest plot. Colours by the verdict's first word; the checks compare them with the page.
@@ -777,7 +800,7 @@ def render(claims: dict) -> str:
     out += [tally(judged), "", multiplicity(judged), ""]
     table = confirmatory()
     if table:
-        out += ["## The confirmatory study: planned, not yet run", ""]
+        out += [f"## {confirmatory_status()}", ""]
         out += [claims.get("confirmatory", "").strip(), "", *table, ""]
     out += ["## Exploratory rows", "", claims.get("exploratory", "").strip(), ""]
     if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
