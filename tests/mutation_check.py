@@ -59,6 +59,10 @@ LWS = scripts("a3c_lws", "future_work/a3c_lws_online")
 HOGWILD = ("agents/a3c_runtime/hogwild.py",)
 CHECKPOINTS = ("agents/a3c_runtime/checkpoints.py",)
 RESUME = ("agents/a3c_runtime/resume.py",)
+BATCHED_BACKEND = ("agents/a3c_tools/batched.py",)
+SWEEP = ("agents/a3c_tools/sweep.py",)
+PAIRED = ("agents/a3c_tools/paired.py",)
+CONFIRMATORY = ("agents/a3c_tools/confirmatory.py",)
 CATCH = ("catch_env/catch.py",)
 WRAPPERS = ("catch_env/wrappers.py",)
 
@@ -73,6 +77,11 @@ PROTO = "tests/test_prototype_policies.py"
 ARCH = "tests/test_variants_arch.py"
 CATCH_T = "tests/test_catch.py"
 WRAP_T = "tests/test_wrappers.py"
+BATCH_T = "tests/test_batched.py"  # the batched backend against the scripts' own runs
+SWEEP_T = "tests/test_sweep.py"
+COMPARE_T = "tests/test_compare.py"
+CLAIMS_T = "tests/test_thesis_claims.py"
+CONFIRM_T = "tests/test_confirmatory.py"
 
 # fmt: off
 MUTANTS = [
@@ -281,6 +290,60 @@ MUTANTS = [
            "the last episode's frames after an autoreset", WRAPPERS,
            "self._stack[ended] = obs[ended]  # the next", "self._stack[ended, -1] = obs[ended, 0]"
            "  # the next", (WRAP_T,)),
+    # --- the batched backend: each run its own learning rate, clipping, streams ----------------
+    Mutant("batched-one-learning-rate", "every run of a batch learns at run 0's learning rate",
+           BATCHED_BACKEND, "lrs = [annealed_lr(args, self.step_count) for args in self.args]",
+           "lrs = [annealed_lr(self.args[0], self.step_count) for _ in self.args]", (BATCH_T,)),
+    Mutant("batched-clip-across-runs", "global-norm clipping scales each run by the largest "
+           "norm in the batch, not its own", BATCHED_BACKEND,
+           "global_norm = torch.linalg.vector_norm(norms, dim=1)\n",
+           "global_norm = torch.linalg.vector_norm(norms, dim=1).max().expand(len(norms))\n",
+           (BATCH_T,)),
+    Mutant("batched-one-action-stream", "every run draws its actions from run 0's generator",
+           BATCHED_BACKEND, "np.stack([rng.random(UNIFORM_BLOCK) for rng in self.rngs], axis=1)",
+           "np.stack([self.rngs[0].random(UNIFORM_BLOCK) for _ in self.rngs], axis=1)",
+           (BATCH_T,)),
+    Mutant("batched-one-evaluation-stream", "every run's evaluation plays run 0's episodes",
+           BATCHED_BACKEND, "np.random.default_rng([args.seed, EVALUATION_STREAM",
+           "np.random.default_rng([0 * args.seed + self.args[0].seed, EVALUATION_STREAM",
+           (BATCH_T,)),
+    Mutant("batched-rmsprop-no-decay", "the batch's RMSprop statistics never decay (rho = 1)",
+           BATCHED_BACKEND, "torch._foreach_mul_(self.square_avg, self.decay)",
+           "torch._foreach_mul_(self.square_avg, 1.0)", (BATCH_T,)),
+    # --- the sweep: run i's seed and sampled flags -----------------------------------------------
+    Mutant("sweep-seeds-adjacent", "a sweep's run seeds are 1 apart, not 1000 (worker seeds of "
+           "neighbouring runs collide)", SWEEP, "SEED_STRIDE = 1000  # run i", "SEED_STRIDE = 1  "
+           "# run i", (SWEEP_T,)),
+    Mutant("sweep-samples-one-stream", "every run of a sweep samples run 0's flag values",
+           SWEEP, 'rng = random.Random(f"sweep-{sweep_seed}-run-{index}")',
+           'rng = random.Random(f"sweep-{sweep_seed}-run-{0 * index}")', (SWEEP_T,)),
+    # --- the statistics of the claims page and the confirmatory study --------------------------
+    Mutant("t-test-one-sided", "the paired t test's p-value is one-sided (halved)", PAIRED,
+           "return float(2 * stats.t.sf(gap / se, n - 1))",
+           "return float(stats.t.sf(gap / se, n - 1))", (COMPARE_T, CLAIMS_T)),
+    Mutant("t-interval-biased-spread", "the t interval takes the spread with ddof 0", PAIRED,
+           "half = t_quantile(n, confidence) * d.std(axis=-1, ddof=1)",
+           "half = t_quantile(n, confidence) * d.std(axis=-1, ddof=0)", (COMPARE_T, CLAIMS_T)),
+    Mutant("t-quantile-degrees", "the t quantile of n pairs takes n degrees of freedom, not "
+           "n - 1", PAIRED, "q[2:] = stats.t.ppf(0.5 + confidence / 2, n[2:] - 1)",
+           "q[2:] = stats.t.ppf(0.5 + confidence / 2, n[2:])", (COMPARE_T, CLAIMS_T)),
+    Mutant("holm-as-bonferroni", "Holm's step-down multiplies every p by m (Bonferroni)",
+           PAIRED, "running = max(running, min(1.0, (m - rank) * p_values[i]))",
+           "running = max(running, min(1.0, (m - 0 * rank) * p_values[i]))",
+           (CLAIMS_T, CONFIRM_T)),
+    Mutant("holm-not-monotone", "Holm's adjusted p-values lose their running maximum", PAIRED,
+           "running = max(running, min(1.0, (m - rank) * p_values[i]))",
+           "running = min(1.0, (m - rank) * p_values[i])", (CLAIMS_T, CONFIRM_T)),
+    Mutant("power-one-sided-level", "the power of the two-sided test uses the one-sided "
+           "quantile", PAIRED, "q = stats.t.ppf(1 - alpha / 2, df)",
+           "q = stats.t.ppf(1 - alpha, df)", (CONFIRM_T, CLAIMS_T)),
+    Mutant("comparable-far-edge", "a comparable claim is tested against the band's far edge",
+           PAIRED, "edge = margin if d.mean() >= 0 else -margin",
+           "edge = -margin if d.mean() >= 0 else margin", (CLAIMS_T, CONFIRM_T)),
+    Mutant("confirmatory-early-look", "the confirmatory study's one look is taken once any "
+           "claim's runs are in, not all", CONFIRMATORY,
+           'if not all(complete(c["test"], c["runs"]) for c in claims):',
+           'if not any(complete(c["test"], c["runs"]) for c in claims):', (CONFIRM_T,)),
 ]
 # fmt: on
 
