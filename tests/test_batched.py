@@ -681,3 +681,29 @@ def test_the_vmappable_lstm_step_is_torchs_lstm_cell():
     for k in range(3):
         torch.testing.assert_close(h_all[k], expected[k][0], rtol=1e-6, atol=1e-6)
         torch.testing.assert_close(c_all[k], expected[k][1], rtol=1e-6, atol=1e-6)
+
+
+def test_the_reproducing_page_states_the_backends_check_as_committed():
+    """docs/reproducing.md's sentence on campaign item g1 (16 runs of A3C FF on each backend,
+    paired by seed) follows the committed runs: "not in yet" until the batched line holds all
+    16, then the paired difference (batched - process) and 95% t interval those runs give, and
+    the plan's verdict for it: equivalent within +-0.1, different outside, else inconclusive."""
+    from a3c_tools.paired import decision, interval, read_scores
+
+    page = " ".join((ROOT / "docs" / "reproducing.md").read_text().split())
+    folder = ROOT / "results" / "batched_equivalence"
+    process = read_scores(folder / "process" / "results.csv")
+    table = folder / "batched" / "results.csv"
+    batched_scores = read_scores(table) if table.is_file() else {}
+    ids = [f"run-{i:04d}" for i in range(16)]
+    assert all(i in process for i in ids), "the process line holds its 16 runs"
+    if not all(i in batched_scores for i in ids):
+        assert "its result is not in yet" in page
+        return
+    d = np.array([batched_scores[i] - process[i] for i in ids])
+    low, high = interval(d)
+    word = decision("comparable", low, high, len(d), margin=0.1)
+    verdict = {"reproduced": "equivalent", "contradicted": "different"}.get(word, word)
+    assert f"{d.mean():+.3f} [{low:+.3f}, {high:+.3f}]" in page
+    assert f"g1: {verdict}" in page
+    assert "its result is not in yet" not in page
