@@ -89,7 +89,10 @@ def test_the_check_fails_on_a_changed_number_or_a_used_seed(tmp_path):
     changed.write_text(text.replace("seed = 7600", "seed = 1"))  # atari_figures' and sweeps'
     done = run_main(confirmatory.main, [str(changed), "--check"])
     assert done.returncode == 1 and "run seeds already used by committed runs: [1, " in done.stdout
-    assert 1 in confirmatory.committed_seeds() and 7500 not in confirmatory.committed_seeds()
+    # the study's own runs (seeds 7500, ...: in its output folders) are not "used before"
+    own = confirmatory.output_folders(confirmatory.tomllib.loads(text))
+    assert 1 in confirmatory.committed_seeds(own=own)
+    assert 7500 not in confirmatory.committed_seeds(own=own)
     old = 'test = { baseline = "results/confirmatory/catch/lpq_low_lr"'
     changed.write_text(text.replace(old, old.replace("lpq_low_lr", "nowhere")))
     done = run_main(confirmatory.main, [str(changed), "--check"])
