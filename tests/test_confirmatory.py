@@ -178,13 +178,14 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     )
     [_, _, row] = thesis_claims.confirmatory(path)
     assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
+    assert thesis_claims.confirmatory_status(path).startswith("done: every run is in")
     write_line(tmp_path / "same", base[:3])  # 6 + 3 of the 12 runs in, and no look
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **under way: 9 of 12 runs in** |")
     assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 12 runs in")
     for folder in ("ff", "same"):
         (tmp_path / folder / "results.csv").unlink()
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **planned, not yet run** |")
-    assert thesis_claims.confirmatory_status(path).endswith(": planned, not yet run")
+    assert thesis_claims.confirmatory_status(path) == "planned, not yet run"
 
 
 def test_the_runs_in_are_counted_from_run_ids_alone_each_line_once(tmp_path, monkeypatch):

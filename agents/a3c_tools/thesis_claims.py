@@ -615,13 +615,14 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
 
 
 def confirmatory_status(plan_path: Path = CONFIRMATORY) -> str:
-    """The confirmatory section's heading: planned, under way (how many of the study's runs are
-    in, each line's counted once however many claims read it; run ids only), or its result."""
+    """The confirmatory section's status: planned, under way (how many of the study's runs are
+    in, each line's counted once however many claims read it; run ids only), or done. Not in its
+    heading, so that the section's anchor stays the same while the runs come in."""
     from a3c_tools.confirmatory import outcomes, runs_in
 
     plan = tomllib.loads(plan_path.read_text())
     if outcomes(plan) is not None:
-        return "The confirmatory study"
+        return "done: every run is in and the one look is taken"
     lines: dict[tuple[str, ...], tuple[int, int]] = {}  # line -> (runs needed, runs in)
     for claim in plan.get("claim", []):
         for line, done in runs_in(claim["test"], claim["runs"]).items():
@@ -629,8 +630,8 @@ def confirmatory_status(plan_path: Path = CONFIRMATORY) -> str:
             lines[line] = (max(needed, claim["runs"]), max(before, done))
     done, needed = sum(d for _, d in lines.values()), sum(n for n, _ in lines.values())
     if not done:
-        return "The confirmatory study: planned, not yet run"
-    return f"The confirmatory study: under way, {done} of its {needed} runs in"
+        return "planned, not yet run"
+    return f"under way, {done} of its {needed} runs in"
 
 
 # The forest plot. Colours by the verdict's first word; the checks compare them with the page.
@@ -800,7 +801,7 @@ def render(claims: dict) -> str:
     out += [tally(judged), "", multiplicity(judged), ""]
     table = confirmatory()
     if table:
-        out += [f"## {confirmatory_status()}", ""]
+        out += ["## The confirmatory study", "", f"**Status**: {confirmatory_status()}.", ""]
         out += [claims.get("confirmatory", "").strip(), "", *table, ""]
     out += ["## Exploratory rows", "", claims.get("exploratory", "").strip(), ""]
     if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
