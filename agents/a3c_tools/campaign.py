@@ -76,6 +76,7 @@ from pathlib import Path
 from a3c_tools import ROOT, run_main
 from a3c_tools import atari_figures as af
 from a3c_tools.figure_sweeps import DataError, Parser, execute
+from a3c_tools.paired import read_rows
 from a3c_tools.sweep import UsageError as SweepUsageError
 from a3c_tools.sweep import read_config
 
@@ -109,14 +110,6 @@ class Item:
     sweeps: list[Sweep]
     cpu_hours_per_run: float | None
     draw: list[str] | None = None  # an atari item's figure, drawn after each of its sweeps
-
-
-def read_rows(out: Path) -> list[dict]:
-    path = out / "results.csv"
-    if not path.is_file():
-        return []
-    with path.open(newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def flag_value(words: list[str], *names: str) -> str | None:

@@ -47,6 +47,7 @@ from a3c_tools.paired import (
     margin_p_value,
     p_value,
     power,
+    read_rows,
     read_scores,
     runs_for_power,
 )
@@ -75,19 +76,11 @@ def catch_differences(spec: dict) -> np.ndarray:
 
 def complete(spec: dict, runs: int) -> bool:
     """Whether every run a claim's test needs is in (ok or failed): Catch lines hold runs
-    0..runs-1, an Atari figure every seed of both lines at the steps."""
+    0..runs-1, an Atari figure every seed of both lines at the steps (its table, which the one
+    look reads)."""
     if "atari" in spec:
         return atari_differences({**spec, "runs": runs}).size == runs
-    folders = [spec["baseline"], *spec.get("lines", [spec.get("line")])]
-    for folder in folders:
-        table = ROOT / folder / "results.csv"
-        if not table.is_file():
-            return False
-        with open(table, newline="") as f:
-            done = {row["run_id"] for row in csv.DictReader(f)}
-        if not {f"run-{i:04d}" for i in range(runs)} <= done:
-            return False
-    return True
+    return all(n == runs for n in runs_in(spec, runs).values())
 
 
 def runs_in(spec: dict, runs: int) -> dict[tuple[str, ...], int]:
@@ -96,24 +89,18 @@ def runs_in(spec: dict, runs: int) -> dict[tuple[str, ...], int]:
     count can be shown while the study runs without looking at its data."""
     if "atari" in spec:  # each line's own folder (the figure's table is drawn after a sweep)
         wanted = {int(spec["seed"]) + STRIDE * i for i in range(runs)}
-        seeds: dict[str, set[int]] = {spec["baseline"]: set(), spec["line"]: set()}
-        for line, found in seeds.items():
-            table = ROOT / spec["atari"] / spec["game"] / line / "results.csv"
-            if table.is_file():
-                with open(table, newline="") as f:
-                    rows = list(csv.DictReader(f))
-                steps = int(spec["steps"])
-                found |= {int(row["seed"]) for row in rows if int(row["seed"]) in wanted
-                          and int(row.get("final_step") or 0) >= steps}  # fmt: skip
-        return {(spec["atari"], spec["game"], line): len(s) for line, s in seeds.items()}
-    counts = {}
-    for folder in [spec["baseline"], *spec.get("lines", [spec.get("line")])]:
-        table, done = ROOT / folder / "results.csv", set()
-        if table.is_file():
-            with open(table, newline="") as f:
-                done = {row["run_id"] for row in csv.DictReader(f)}
-        counts[(folder,)] = len(done & {f"run-{i:04d}" for i in range(runs)})
-    return counts
+        counts = {}
+        for line in (spec["baseline"], spec["line"]):
+            rows = read_rows(ROOT / spec["atari"] / spec["game"] / line)
+            steps = int(spec["steps"])
+            seeds = {int(r["seed"]) for r in rows if int(r.get("final_step") or 0) >= steps}
+            counts[(spec["atari"], spec["game"], line)] = len(seeds & wanted)
+        return counts
+    ids = {f"run-{i:04d}" for i in range(runs)}
+    return {
+        (folder,): len(ids & {row["run_id"] for row in read_rows(ROOT / folder)})
+        for folder in [spec["baseline"], *spec.get("lines", [spec.get("line")])]
+    }
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,15 @@ RANDOM_SLACK = {CATCH: 0.1}  # a run within this of random play has not learned 
 # the game's human - random range)
 
 
+def read_rows(out: Path) -> list[dict]:
+    """The rows of a sweep folder's results.csv, every status ([] before its first run)."""
+    path = out / "results.csv"
+    if not path.is_file():
+        return []
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
 def read_scores(table: Path, column: str = "score") -> dict[str, float]:
     """run_id -> score of the finished (ok) runs of a sweep's results.csv ({} if there is none):
     the mean of the final 5 evaluations, or with column "score_all" the mean of all of them."""
