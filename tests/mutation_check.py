@@ -339,6 +339,17 @@ MUTANTS = [
     Mutant("comparable-far-edge", "a comparable claim is tested against the band's far edge",
            PAIRED, "edge = margin if d.mean() >= 0 else -margin",
            "edge = -margin if d.mean() >= 0 else margin", (CLAIMS_T, CONFIRM_T)),
+    Mutant("confirmatory-comparable-always-reproduced", "a comparable claim that its test "
+           "decides is reproduced on whichever side of the band its effect lies", CONFIRMATORY,
+           'verdict = "reproduced" if abs(effect) < MARGIN else "contradicted"',
+           'verdict = "reproduced" if abs(effect) >= 0 else "contradicted"', (CONFIRM_T,)),
+    Mutant("confirmatory-atari-failed-never-in", "a failed Atari run of the study never counts "
+           "as in, so the one look waits for ever", CONFIRMATORY, "failed.add(seed)",
+           "ok.discard(seed)", (CONFIRM_T,)),
+    Mutant("confirmatory-atari-any-steps", "an Atari run counts as in at any steps, a shorter "
+           "run taken for a finished one", CONFIRMATORY,
+           'elif int(row.get("final_step") or 0) >= int(spec["steps"]):',
+           'elif int(row.get("final_step") or 0) >= 0 * int(spec["steps"]):', (CONFIRM_T,)),
     Mutant("confirmatory-early-look", "the confirmatory study's one look is taken once any "
            "claim's runs are in, not all", CONFIRMATORY,
            'if not all(complete(c["test"], c["runs"]) for c in claims):',

@@ -169,6 +169,12 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     write_line(tmp_path / "up", base + 0.2, ["ok"] * 5 + ["failed"])
     a, _ = confirmatory.outcomes(plan)
     assert a.verdict == "contradicted" and a.pairs == 5
+    # a "comparable" line decidedly outside the band is contradicted, on either side
+    for sign in (1, -1):
+        write_line(tmp_path / "same", base + sign * np.array([0.3, 0.32, 0.29, 0.31, 0.3, 0.28]))
+        _, b = confirmatory.outcomes(plan)
+        assert b.verdict == "contradicted" and b.adjusted < 0.05
+    write_line(tmp_path / "same", base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
     # the claims page shows each claim's result once the look is taken
     path = tmp_path / "plan.toml"
     path.write_text(
@@ -224,6 +230,57 @@ def test_the_runs_in_are_counted_from_run_ids_alone_each_line_once(tmp_path, mon
     )
     # ff: 8 needed (B's), 7 in; lpq: 4 needed, 2 in; x: 8 needed, none in
     assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 20 runs in")
+
+
+def test_the_one_look_at_an_atari_claim_pairs_the_studys_seeds_at_its_steps(tmp_path, monkeypatch):
+    """An Atari claim's runs are in when each of its seeds (seed + 1000 i, i < runs) is in both
+    lines' tables, failed or at its steps; the look then reads the figure's table: the runs of
+    those seeds at the steps, paired by seed, on the claim's game, a failed run's pair left out."""
+    monkeypatch.setattr(confirmatory, "ROOT", tmp_path)
+    steps = {"ff": {7800: 2000080, 8800: 2000080, 9800: 2000080, 1: 2000080},
+             "lws": {7800: 2000080, 8800: 2000080, 9800: 1000000, 1: 2000080}}  # fmt: skip
+
+    def write_lines(failed: int | None = None) -> None:
+        for line, finals in steps.items():
+            folder = tmp_path / "fig" / "Breakout" / line
+            folder.mkdir(parents=True, exist_ok=True)
+            rows = [f"run-{i:04d},{'failed' if seed == failed else 'ok'},{step},{seed}\n"
+                    for i, (seed, step) in enumerate(finals.items())]  # fmt: skip
+            (folder / "results.csv").write_text("run_id,status,final_step,seed\n" + "".join(rows))
+
+    table = tmp_path / "fig" / "results.csv"
+    rows = [
+        ("Breakout", "ff", 7800, 10.0, 2000080), ("Breakout", "lws", 7800, 7.0, 2000080),
+        ("Breakout", "ff", 8800, 20.0, 2000080), ("Breakout", "lws", 8800, 16.0, 2000080),
+        ("Breakout", "ff", 9800, 30.0, 2000080), ("Breakout", "lws", 9800, 25.0, 1000000),
+        ("Breakout", "ff", 1, 99.0, 2000080), ("Breakout", "lws", 1, 0.0, 2000080),
+        ("BeamRider", "ff", 7800, 500.0, 2000080), ("BeamRider", "lws", 7800, 900.0, 2000080),
+    ]  # fmt: skip
+    write_lines()  # lws seed 9800 stopped short; seed 1 is not the study's; Beam Rider another game
+    table.write_text(
+        "figure,game,line,seed,final_score,final_step\n"
+        + "".join(f"fig,{g},{line},{s},{v},{t}\n" for g, line, s, v, t in rows)
+    )
+    spec = {"atari": "fig", "game": "Breakout", "baseline": "ff", "line": "lws", "seed": 7800,
+            "steps": 2000000}  # fmt: skip
+    assert confirmatory.differences({**spec, "runs": 3}).tolist() == [-3.0, -4.0]
+    assert confirmatory.runs_in(spec, 3) == {("fig", "Breakout", "ff"): 3,
+                                             ("fig", "Breakout", "lws"): 2}  # fmt: skip
+    assert not confirmatory.complete(spec, 3) and confirmatory.complete(spec, 2)
+    plan = {"study": {"alpha": 0.05},
+            "claim": [{"id": "P3", "expect": "worse", "runs": 3, "test": spec}]}  # fmt: skip
+    assert confirmatory.outcomes(plan) is None  # one of its runs is short of the steps
+    write_lines(failed=9800)  # it failed: in, and its pair left out
+    assert confirmatory.complete(spec, 3)
+    [p3] = confirmatory.outcomes(plan)
+    assert (p3.pairs, p3.effect) == (2, pytest.approx(-3.5))
+    steps["lws"][9800] = 2000080  # it finished instead: in the lines, but not yet in the table
+    write_lines()
+    assert confirmatory.outcomes(plan) is None
+    table.write_text(table.read_text().replace("lws,9800,25.0,1000000", "lws,9800,25.0,2000080"))
+    [p3] = confirmatory.outcomes(plan)
+    assert (p3.pairs, p3.effect) == (3, pytest.approx(-4.0))
+    assert p3.p == pytest.approx(paired.p_value(np.array([-3.0, -4.0, -5.0])))
 
 
 def test_a_bad_plan_is_one_line_and_exit_2(tmp_path):

@@ -76,26 +76,46 @@ def catch_differences(spec: dict) -> np.ndarray:
 
 def complete(spec: dict, runs: int) -> bool:
     """Whether every run a claim's test needs is in (ok or failed): Catch lines hold runs
-    0..runs-1, an Atari figure every seed of both lines at the steps (its table, which the one
-    look reads)."""
+    0..runs-1, an Atari figure's lines every seed (a failed run, or an ok one at the steps), and
+    its table, which the one look reads, every seed that is ok in both lines."""
+    if not all(n == runs for n in runs_in(spec, runs).values()):
+        return False
     if "atari" in spec:
-        return atari_differences({**spec, "runs": runs}).size == runs
-    return all(n == runs for n in runs_in(spec, runs).values())
+        both = set.intersection(*(atari_seeds(spec, runs, line)[0] for line in atari_lines(spec)))
+        return atari_differences({**spec, "runs": runs}).size == len(both)
+    return True
+
+
+def atari_lines(spec: dict) -> tuple[str, str]:
+    return spec["baseline"], spec["line"]
+
+
+def atari_seeds(spec: dict, runs: int, line: str) -> tuple[set[int], set[int]]:
+    """The seeds of an Atari claim's runs (seed + 1000 i, i < runs) in one line's results.csv,
+    read from its seed, status and final_step columns alone (no score): (ok and at the claim's
+    steps, failed). An ok run short of the steps is not in (a run of another budget)."""
+    wanted = {int(spec["seed"]) + STRIDE * i for i in range(runs)}
+    ok, failed = set(), set()
+    for row in read_rows(ROOT / spec["atari"] / spec["game"] / line):
+        seed = int(row["seed"])
+        if seed not in wanted:
+            continue
+        if row.get("status") == "failed":
+            failed.add(seed)
+        elif int(row.get("final_step") or 0) >= int(spec["steps"]):
+            ok.add(seed)
+    return ok, failed
 
 
 def runs_in(spec: dict, runs: int) -> dict[tuple[str, ...], int]:
     """How many of the runs a claim's test needs are in, line by line (the line's folder, or its
-    figure, game and name), counted from the run ids and seeds alone: no score is read, so the
-    count can be shown while the study runs without looking at its data."""
+    figure, game and name), counted from the run ids, seeds, statuses and steps alone: no score
+    is read, so the count can be shown while the study runs without looking at its data."""
     if "atari" in spec:  # each line's own folder (the figure's table is drawn after a sweep)
-        wanted = {int(spec["seed"]) + STRIDE * i for i in range(runs)}
-        counts = {}
-        for line in (spec["baseline"], spec["line"]):
-            rows = read_rows(ROOT / spec["atari"] / spec["game"] / line)
-            steps = int(spec["steps"])
-            seeds = {int(r["seed"]) for r in rows if int(r.get("final_step") or 0) >= steps}
-            counts[(spec["atari"], spec["game"], line)] = len(seeds & wanted)
-        return counts
+        return {
+            (spec["atari"], spec["game"], line): len(set.union(*atari_seeds(spec, runs, line)))
+            for line in atari_lines(spec)
+        }
     ids = {f"run-{i:04d}" for i in range(runs)}
     return {
         (folder,): len(ids & {row["run_id"] for row in read_rows(ROOT / folder)})
