@@ -15,6 +15,7 @@ import threading
 import time
 from pathlib import Path
 
+import a3c_tools
 import pytest
 from a3c_runtime import checkpoints
 from a3c_tools import campaign, figure_sweeps, sweep
@@ -44,6 +45,20 @@ FAKE_AGENT = textwrap.dedent(
             f.write(f"{step},0.1,{score},0.0,5\\n")
     """
 )
+
+
+@pytest.fixture(autouse=True)
+def tmp_path_is_part_of_the_clone(tmp_path, monkeypatch):
+    """The tests' plans name folders and stand-in agents in tmp_path: the plan's checks take
+    those as the clone's results/ and agent scripts, and hold every other path to the real ones
+    (test_a_bad_plan_exits_2_with_one_line_and_runs_nothing tests the real checks)."""
+    for name in ("results_folder", "agent_script"):
+        real = getattr(a3c_tools, name)
+
+        def check(value, real=real):
+            return Path(value) if Path(value).resolve().is_relative_to(tmp_path) else real(value)
+
+        monkeypatch.setattr(campaign, name, check)
 
 
 @pytest.fixture
@@ -257,7 +272,7 @@ def test_a_sweep_item_makes_new_paired_lines_from_the_plans_own_configuration(li
         """,
     )
     done = run_main(campaign.main, [str(bad)])
-    assert done.returncode == 2 and "no script agents/no_such_agent.py" in done.stderr
+    assert done.returncode == 2 and "no agent script agents/no_such_agent.py" in done.stderr
 
 
 def pong_item(out: Path, lines: list[str]) -> str:
@@ -312,15 +327,29 @@ def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
         ('kind = "other"\nid = "x"\ntitle = "t"', "kind 'other'; valid: extend, repeat, atari"),
         ('kind = "extend"\ntitle = "t"', "has no id"),
         ('kind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
-         'lines = [{ script = "agents/a3c_ff.py", out = "NOWHERE" }]', "NOWHERE has no sweep.json"),
+         'lines = [{ script = "agents/a3c_ff.py", out = "TMP/nowhere" }]',
+         "nowhere has no sweep.json"),
+        ('kind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
+         'lines = [{ script = "/bin/sh", out = "LINE" }]',
+         "no agent script /bin/sh; valid: agents/a3c_*.py, agents/future_work/a3c_*.py"),
+        ('kind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
+         'lines = [{ script = "agents/../tests/conftest.py", out = "LINE" }]',
+         "no agent script agents/../tests/conftest.py"),
+        ('kind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
+         'lines = [{ script = "agents/a3c_ff.py", out = "results/../../outside" }]',
+         "'results/../../outside' is not a folder under results/"),
+        ('kind = "repeat"\nid = "x"\ntitle = "t"\nscript = "agents/a3c_ff.py"\n'
+         'source = "LINE"\nout = "/tmp"', "'/tmp' is not a folder under results/"),
         ('kind = "extend"\nid = "x"\ntitle = "t"\nruns = 3\n'
          'lines = [{ script = "agents/a3c_lws.py", out = "LINE" }]', "a sweep of a3c_ff.py, not"),
         ('kind = "atari"\nid = "x"\ntitle = "t"\nfigure = "fig6.10"\ngame = "Pong"\n'
-         'lines = ["vf2"]\nseeds = 3\nsteps = 10\nnum_workers = 1\nout = "o"', "has no line vf2"),
+         'lines = ["vf2"]\nseeds = 3\nsteps = 10\nnum_workers = 1\nout = "TMP/o"',
+         "has no line vf2"),
     ],
 )  # fmt: skip
 def test_a_bad_plan_exits_2_with_one_line_and_runs_nothing(line, tmp_path, body, message):
-    plan = write_plan(tmp_path, "[[item]]\n" + body.replace("LINE", str(line)) + "\n")
+    body = body.replace("LINE", str(line)).replace("TMP", str(tmp_path))
+    plan = write_plan(tmp_path, "[[item]]\n" + body + "\n")
     result = run_main(campaign.main, [str(plan)])
     assert result.returncode == 2
     assert len(result.stderr.splitlines()) == 1 and message in result.stderr, result.stderr

@@ -145,19 +145,24 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
 
     monkeypatch.setattr(confirmatory, "ROOT", tmp_path)
     base = np.linspace(0.3, 0.7, 6)
-    write_line(tmp_path / "ff", base)
-    write_line(tmp_path / "up", base + [0.20, 0.22, 0.19, 0.21, 0.20, 0.18])  # clearly better
-    write_line(tmp_path / "same", (base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])[:5])  # 5 of 6
+    write_line(tmp_path / "results" / "ff", base)
+    write_line(
+        tmp_path / "results" / "up", base + [0.20, 0.22, 0.19, 0.21, 0.20, 0.18]
+    )  # clearly better
+    write_line(
+        tmp_path / "results" / "same", (base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])[:5]
+    )  # 5 of 6
     plan = {
         "study": {"alpha": 0.05},
         "claim": [
-            {"id": "A", "expect": "better", "runs": 6, "test": {"baseline": "ff", "line": "up"}},
+            {"id": "A", "expect": "better", "runs": 6,
+             "test": {"baseline": "results/ff", "line": "results/up"}},
             {"id": "B", "expect": "comparable", "runs": 6,
-             "test": {"baseline": "ff", "line": "same"}},
+             "test": {"baseline": "results/ff", "line": "results/same"}},
         ],
     }  # fmt: skip
     assert confirmatory.outcomes(plan) is None  # one look: not before every run is in
-    write_line(tmp_path / "same", base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
+    write_line(tmp_path / "results" / "same", base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
     a, b = confirmatory.outcomes(plan)
     pa = paired.p_value(np.array([0.20, 0.22, 0.19, 0.21, 0.20, 0.18]))
     pb = paired.margin_p_value(np.array([0.01, -0.01, 0.0, 0.02, -0.02, 0.0]))
@@ -166,30 +171,33 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     assert (a.verdict, b.verdict) == ("reproduced", "reproduced") and a.pairs == 6
     # the wrong direction is contradicted; a failed run counts as in, its pair left out
     plan["claim"][0]["expect"] = "worse"
-    write_line(tmp_path / "up", base + 0.2, ["ok"] * 5 + ["failed"])
+    write_line(tmp_path / "results" / "up", base + 0.2, ["ok"] * 5 + ["failed"])
     a, _ = confirmatory.outcomes(plan)
     assert a.verdict == "contradicted" and a.pairs == 5
     # a "comparable" line decidedly outside the band is contradicted, on either side
     for sign in (1, -1):
-        write_line(tmp_path / "same", base + sign * np.array([0.3, 0.32, 0.29, 0.31, 0.3, 0.28]))
+        write_line(
+            tmp_path / "results" / "same",
+            base + sign * np.array([0.3, 0.32, 0.29, 0.31, 0.3, 0.28]),
+        )
         _, b = confirmatory.outcomes(plan)
         assert b.verdict == "contradicted" and b.adjusted < 0.05
-    write_line(tmp_path / "same", base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
+    write_line(tmp_path / "results" / "same", base + [0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
     # the claims page shows each claim's result once the look is taken
     path = tmp_path / "plan.toml"
     path.write_text(
         '[study]\nalpha = 0.05\n[[claim]]\nid = "A"\nclaim = "c"\nexperiment = "e"\n'
         'expect = "better"\neffect = 0.1\neffect_basis = "b"\nruns = 6\npower = 0.9\n'
-        'level = 0.05\ntest = { baseline = "ff", line = "same" }\n'
+        'level = 0.05\ntest = { baseline = "results/ff", line = "results/same" }\n'
     )
     [_, _, row] = thesis_claims.confirmatory(path)
     assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
     assert thesis_claims.confirmatory_status(path).startswith("done: every run is in")
-    write_line(tmp_path / "same", base[:3])  # 6 + 3 of the 12 runs in, and no look
+    write_line(tmp_path / "results" / "same", base[:3])  # 6 + 3 of the 12 runs in, and no look
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **under way: 9 of 12 runs in** |")
     assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 12 runs in")
     for folder in ("ff", "same"):
-        (tmp_path / folder / "results.csv").unlink()
+        (tmp_path / "results" / folder / "results.csv").unlink()
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **planned, not yet run** |")
     assert thesis_claims.confirmatory_status(path) == "planned, not yet run"
 
@@ -201,30 +209,33 @@ def test_the_runs_in_are_counted_from_run_ids_alone_each_line_once(tmp_path, mon
     from a3c_tools import thesis_claims
 
     monkeypatch.setattr(confirmatory, "ROOT", tmp_path)
-    (tmp_path / "ff").mkdir()
-    (tmp_path / "ff" / "results.csv").write_text(
+    (tmp_path / "results" / "ff").mkdir(parents=True)
+    (tmp_path / "results" / "ff" / "results.csv").write_text(
         "run_id,status\n" + "".join(f"run-{i:04d},ok\n" for i in range(7))
     )
-    write_line(tmp_path / "lpq", [0.5] * 2)
-    assert confirmatory.runs_in({"baseline": "ff", "line": "lpq"}, 5) == {("ff",): 5, ("lpq",): 2}
-    assert confirmatory.runs_in({"baseline": "ff", "lines": ["lpq", "none"]}, 8) == {
-        ("ff",): 7, ("lpq",): 2, ("none",): 0
+    write_line(tmp_path / "results" / "lpq", [0.5] * 2)
+    assert confirmatory.runs_in({"baseline": "results/ff", "line": "results/lpq"}, 5) == {
+        ("results/ff",): 5, ("results/lpq",): 2
     }  # fmt: skip
-    figure = tmp_path / "atari" / "fig6.9" / "Breakout"
+    composite = {"baseline": "results/ff", "lines": ["results/lpq", "results/none"]}
+    assert confirmatory.runs_in(composite, 8) == {
+        ("results/ff",): 7, ("results/lpq",): 2, ("results/none",): 0
+    }  # fmt: skip
+    figure = tmp_path / "results" / "atari" / "fig6.9" / "Breakout"
     (figure / "ff").mkdir(parents=True)
     (figure / "ff" / "results.csv").write_text(
         "run_id,status,final_step,seed\nrun-0000,ok,2000080,7800\nrun-0001,ok,1000000,8800\n"
         "run-0002,ok,2000080,9800\nrun-0003,ok,2000080,1\n"
     )  # run 1 stopped short; seed 1 is not the study's
-    atari = {"atari": "atari/fig6.9", "game": "Breakout", "baseline": "ff", "line": "lws",
+    atari = {"atari": "results/atari/fig6.9", "game": "Breakout", "baseline": "ff", "line": "lws",
              "seed": 7800, "steps": 2000000}  # fmt: skip
-    key = ("atari/fig6.9", "Breakout")
+    key = ("results/atari/fig6.9", "Breakout")
     assert confirmatory.runs_in(atari, 10) == {(*key, "ff"): 2, (*key, "lws"): 0}
     assert confirmatory.runs_in(atari, 2) == {(*key, "ff"): 1, (*key, "lws"): 0}
     path = tmp_path / "plan.toml"
     claim = ('[[claim]]\nid = "{}"\nclaim = "c"\nexperiment = "e"\nexpect = "better"\n'
              'effect = 0.1\neffect_basis = "b"\nruns = {}\npower = 0.9\nlevel = 0.05\n'
-             'test = {{ baseline = "ff", line = "{}" }}\n')  # fmt: skip
+             'test = {{ baseline = "results/ff", line = "results/{}" }}\n')  # fmt: skip
     path.write_text(
         "[study]\nalpha = 0.05\n" + claim.format("A", 4, "lpq") + claim.format("B", 8, "x")
     )
@@ -242,13 +253,13 @@ def test_the_one_look_at_an_atari_claim_pairs_the_studys_seeds_at_its_steps(tmp_
 
     def write_lines(failed: int | None = None) -> None:
         for line, finals in steps.items():
-            folder = tmp_path / "fig" / "Breakout" / line
+            folder = tmp_path / "results" / "fig" / "Breakout" / line
             folder.mkdir(parents=True, exist_ok=True)
             rows = [f"run-{i:04d},{'failed' if seed == failed else 'ok'},{step},{seed}\n"
                     for i, (seed, step) in enumerate(finals.items())]  # fmt: skip
             (folder / "results.csv").write_text("run_id,status,final_step,seed\n" + "".join(rows))
 
-    table = tmp_path / "fig" / "results.csv"
+    table = tmp_path / "results" / "fig" / "results.csv"
     rows = [
         ("Breakout", "ff", 7800, 10.0, 2000080), ("Breakout", "lws", 7800, 7.0, 2000080),
         ("Breakout", "ff", 8800, 20.0, 2000080), ("Breakout", "lws", 8800, 16.0, 2000080),
@@ -261,11 +272,11 @@ def test_the_one_look_at_an_atari_claim_pairs_the_studys_seeds_at_its_steps(tmp_
         "figure,game,line,seed,final_score,final_step\n"
         + "".join(f"fig,{g},{line},{s},{v},{t}\n" for g, line, s, v, t in rows)
     )
-    spec = {"atari": "fig", "game": "Breakout", "baseline": "ff", "line": "lws", "seed": 7800,
-            "steps": 2000000}  # fmt: skip
+    spec = {"atari": "results/fig", "game": "Breakout", "baseline": "ff", "line": "lws",
+            "seed": 7800, "steps": 2000000}  # fmt: skip
     assert confirmatory.differences({**spec, "runs": 3}).tolist() == [-3.0, -4.0]
-    assert confirmatory.runs_in(spec, 3) == {("fig", "Breakout", "ff"): 3,
-                                             ("fig", "Breakout", "lws"): 2}  # fmt: skip
+    assert confirmatory.runs_in(spec, 3) == {("results/fig", "Breakout", "ff"): 3,
+                                             ("results/fig", "Breakout", "lws"): 2}  # fmt: skip
     assert not confirmatory.complete(spec, 3) and confirmatory.complete(spec, 2)
     plan = {"study": {"alpha": 0.05},
             "claim": [{"id": "P3", "expect": "worse", "runs": 3, "test": spec}]}  # fmt: skip
@@ -291,6 +302,13 @@ def test_a_bad_plan_is_one_line_and_exit_2(tmp_path):
     done = run_main(confirmatory.main, [str(short), "--check"])
     assert done.returncode == 2 and done.stderr.strip() == f"{short}: no 'spread_from'"
     assert "Traceback" not in done.stderr
+    outside = tmp_path / "outside.toml"  # a folder outside results/ is refused before it is read
+    outside.write_text(
+        PLAN.read_text().replace('"results/thesis_figures_catch/fig6.7/relu"', '"../../etc"', 1)
+    )
+    refused = run_main(confirmatory.main, [str(outside)])
+    assert refused.returncode == 2
+    assert refused.stderr.strip() == f"{outside}: '../../etc' is not a folder under results/"
 
 
 def test_the_campaigns_progress_estimates_the_studys_cpu_hours_from_its_rate_from():

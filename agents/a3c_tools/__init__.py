@@ -51,6 +51,30 @@ AGENTS = ROOT / "agents"
 ATARI_REPORT_CONFIG = Path(__file__).with_name("atari_report.toml")
 
 
+def results_folder(value: str, root: Path = ROOT) -> Path:
+    """A folder a plan or table names (relative to the clone, `root`, or absolute): it must lie
+    inside the clone's results/ (the runs a tool reads or writes are the repository's), else
+    ValueError naming it."""
+    if not (root / value).resolve().is_relative_to((root / "results").resolve()):
+        raise ValueError(f"{value!r} is not a folder under results/")
+    return Path(value)
+
+
+def agent_script(value: str) -> Path:
+    """A script a plan names (relative to the clone or absolute): it must be one of the clone's
+    agent scripts (agent_scripts()), else ValueError naming the valid ones."""
+    resolved = (ROOT / value).resolve()
+    agents = AGENTS.resolve()
+    if not (
+        resolved.is_relative_to(agents)
+        and resolved.relative_to(agents).as_posix() in agent_scripts()
+    ):
+        raise ValueError(
+            f"no agent script {value}; valid: agents/a3c_*.py, agents/future_work/a3c_*.py"
+        )
+    return Path(value)
+
+
 def agent_scripts() -> set[str]:
     """The agent scripts of this clone, as their checkpoints name them (relative to agents/):
     agents/a3c_*.py and agents/future_work/a3c_*.py."""

@@ -54,6 +54,11 @@ those Catch sweeps after every other sweep of the plan, so that the CPU first do
 could not batch while a device, when one is lent, runs the rest; the order of the runs changes
 nothing in a plan's analysis, which waits for all of them.
 
+A plan is checked before anything runs: every script it names must be one of the clone's agent
+scripts (agents/a3c_*.py, agents/future_work/a3c_*.py) and every folder (out, source,
+config_from, rate_from) must lie under the clone's results/, so that a plan handed on can
+neither run other code nor write or read outside the repository's results.
+
 Exit codes: 0 when the plan is done, 1 when a sweep failed, 2 for a bad plan or options
 (nothing runs), 130 when interrupted.
 """
@@ -73,7 +78,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import ROOT, run_main
+from a3c_tools import ROOT, agent_script, results_folder, run_main
 from a3c_tools import atari_figures as af
 from a3c_tools.figure_sweeps import DataError, Parser, execute
 from a3c_tools.paired import read_rows
@@ -172,6 +177,17 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
         raise DataError(f"{where} has no {missing.args[0]}") from None
     if kind not in KINDS:
         raise DataError(f"{where}: kind {kind!r}; valid: {', '.join(KINDS)}")
+    try:  # a plan's scripts are the clone's agent scripts, its folders under results/
+        for part in (entry, *entry.get("lines", [])):
+            if isinstance(part, dict) and "script" in part:
+                agent_script(part["script"])
+            for key in ("out", "source", "config_from"):
+                if isinstance(part, dict) and key in part:
+                    results_folder(part[key])
+        for folder in entry.get("rate_from", []):
+            results_folder(folder)
+    except ValueError as error:
+        raise DataError(f"{where}: {error}") from None
     sweeps = []
     if kind == "extend":
         for line in entry.get("lines", []):
@@ -183,8 +199,6 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
     elif kind == "sweep":  # a new line, its configuration in the plan itself
         for line in entry.get("lines", []):
             script = line["script"]
-            if not (ROOT / script).is_file():
-                raise DataError(f"{where}: no script {script}")
             out = Path(line["out"])
             command = ["-m", "a3c_tools.sweep", script, "--out", str(out),
                        "--runs", str(int(entry["runs"])), "--seed", str(int(entry["seed"])),

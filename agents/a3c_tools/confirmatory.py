@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ROOT, run_main
+from a3c_tools import ROOT, results_folder, run_main
 from a3c_tools.paired import (
     MARGIN,
     MAX_POWER_RUNS,
@@ -65,8 +65,11 @@ def catch_differences(spec: dict) -> np.ndarray:
     """The committed paired differences (line - baseline, or the lines' mean - baseline) over
     runs 0..runs-1 of a Catch spec."""
     ids = [f"run-{i:04d}" for i in range(int(spec["runs"]))]
-    base = read_scores(ROOT / spec["baseline"] / "results.csv")
-    lines = [read_scores(ROOT / f / "results.csv") for f in spec.get("lines", [spec.get("line")])]
+    base = read_scores(ROOT / results_folder(spec["baseline"], ROOT) / "results.csv")
+    lines = [
+        read_scores(ROOT / results_folder(f, ROOT) / "results.csv")
+        for f in spec.get("lines", [spec.get("line")])
+    ]
     ids = [i for i in ids if i in base and all(i in line for line in lines)]
     if not ids:
         return np.array([])
@@ -96,7 +99,7 @@ def atari_seeds(spec: dict, runs: int, line: str) -> tuple[set[int], set[int]]:
     steps, failed). An ok run short of the steps is not in (a run of another budget)."""
     wanted = {int(spec["seed"]) + STRIDE * i for i in range(runs)}
     ok, failed = set(), set()
-    for row in read_rows(ROOT / spec["atari"] / spec["game"] / line):
+    for row in read_rows(ROOT / results_folder(f"{spec['atari']}/{spec['game']}/{line}", ROOT)):
         seed = int(row["seed"])
         if seed not in wanted:
             continue
@@ -118,7 +121,9 @@ def runs_in(spec: dict, runs: int) -> dict[tuple[str, ...], int]:
         }
     ids = {f"run-{i:04d}" for i in range(runs)}
     return {
-        (folder,): len(ids & {row["run_id"] for row in read_rows(ROOT / folder)})
+        (folder,): len(
+            ids & {row["run_id"] for row in read_rows(ROOT / results_folder(folder, ROOT))}
+        )
         for folder in [spec["baseline"], *spec.get("lines", [spec.get("line")])]
     }
 
@@ -169,7 +174,7 @@ def atari_differences(spec: dict) -> np.ndarray:
     """The paired differences of two lines of an Atari figure on one game, by seed (with `seed`,
     `runs` and `steps` in the spec: only seeds seed + 1000 i, i < runs, that reached the steps)."""
     finals: dict[str, dict[int, float]] = {}
-    table = ROOT / spec["atari"] / "results.csv"
+    table = ROOT / results_folder(spec["atari"], ROOT) / "results.csv"
     if not table.is_file():
         return np.array([])
     wanted = None
@@ -352,7 +357,7 @@ def cpu_hours(item: dict) -> float:
     steps = int(item.get("total_timesteps", item.get("steps", 0)))
     total = 0.0
     for folder in item["rate_from"]:
-        with open(ROOT / folder / "results.csv", newline="") as f:
+        with open(ROOT / results_folder(folder, ROOT) / "results.csv", newline="") as f:
             rows = [row for row in csv.DictReader(f) if row.get("status", "ok") == "ok"]
         workers = int(item.get("num_workers", 1))
         seconds = [float(r["wall_time_s"]) / float(r["final_step"]) for r in rows]
