@@ -345,6 +345,9 @@ def test_an_atari_item_draws_its_figure_after_each_sweep(tmp_path, monkeypatch):
         ('kind = "atari"\nid = "x"\ntitle = "t"\nfigure = "fig6.10"\ngame = "Pong"\n'
          'lines = ["vf2"]\nseeds = 3\nsteps = 10\nnum_workers = 1\nout = "TMP/o"',
          "has no line vf2"),
+        ('kind = "atari"\nid = "x"\ntitle = "t"\nfigure = "fig6.10"\ngame = "../../x"\n'
+         'lines = ["vf1.0"]\nseeds = 3\nsteps = 10\nnum_workers = 1\nout = "TMP/o"',
+         "fig6.10 has no game '../../x'; valid: Pong"),
     ],
 )  # fmt: skip
 def test_a_bad_plan_exits_2_with_one_line_and_runs_nothing(line, tmp_path, body, message):

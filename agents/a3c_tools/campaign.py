@@ -224,6 +224,9 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
             num_workers=int(entry["num_workers"]), seed=int(entry.get("seed", af.SEED)),
         )  # fmt: skip
         lines = {line.slug: line for line in figure.lines}
+        if entry["game"] not in figure.games:
+            raise DataError(f"{where}: {figure.id} has no game {entry['game']!r}; "
+                            f"valid: {', '.join(figure.games)}")  # fmt: skip
         for slug in entry["lines"]:
             if slug not in lines:
                 raise DataError(f"{where}: {figure.id} has no line {slug}; valid: {list(lines)}")
