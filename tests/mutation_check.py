@@ -63,6 +63,7 @@ BATCHED_BACKEND = ("agents/a3c_tools/batched.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
 CONFIRMATORY = ("agents/a3c_tools/confirmatory.py",)
+TOOLS = ("agents/a3c_tools/__init__.py",)
 CATCH = ("catch_env/catch.py",)
 WRAPPERS = ("catch_env/wrappers.py",)
 
@@ -82,6 +83,7 @@ SWEEP_T = "tests/test_sweep.py"
 COMPARE_T = "tests/test_compare.py"
 CLAIMS_T = "tests/test_thesis_claims.py"
 CONFIRM_T = "tests/test_confirmatory.py"
+CAMPAIGN_T = "tests/test_campaign.py"
 
 # fmt: off
 MUTANTS = [
@@ -316,6 +318,13 @@ MUTANTS = [
     Mutant("sweep-samples-one-stream", "every run of a sweep samples run 0's flag values",
            SWEEP, 'rng = random.Random(f"sweep-{sweep_seed}-run-{index}")',
            'rng = random.Random(f"sweep-{sweep_seed}-run-{0 * index}")', (SWEEP_T,)),
+    # --- what a plan may name ---------------------------------------------------------------
+    Mutant("plan-script-unchecked", "a plan's script is taken as an agent script whatever it "
+           "names", TOOLS, "resolved = (ROOT / value).resolve()",
+           'resolved = (AGENTS / "a3c_ff.py").resolve()', (CAMPAIGN_T,)),
+    Mutant("plan-folder-anywhere", "a plan's folder may lie anywhere on the machine", TOOLS,
+           'if not (root / value).resolve().is_relative_to((root / "results").resolve()):',
+           'if not (root / value).resolve().is_relative_to(Path("/")):', (CAMPAIGN_T, CONFIRM_T)),
     # --- the statistics of the claims page and the confirmatory study --------------------------
     Mutant("t-test-one-sided", "the paired t test's p-value is one-sided (halved)", PAIRED,
            "return float(2 * stats.t.sf(gap / se, n - 1))",
