@@ -59,6 +59,8 @@ LWS = scripts("a3c_lws", "future_work/a3c_lws_online")
 HOGWILD = ("agents/a3c_runtime/hogwild.py",)
 CHECKPOINTS = ("agents/a3c_runtime/checkpoints.py",)
 RESUME = ("agents/a3c_runtime/resume.py",)
+RUN = ("agents/a3c_runtime/a3c.py",)
+SUPERVISION = ("agents/a3c_runtime/supervision.py",)
 BATCHED_BACKEND = ("agents/a3c_tools/batched.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
@@ -74,6 +76,8 @@ WORKERS = "tests/test_workers.py"  # the worker loop
 OPTIM = "tests/test_runtime_hogwild.py"
 CKPT = "tests/test_runtime_checkpoints.py"
 RES = "tests/test_runtime_resume.py"
+TRAIN = "tests/test_runtime_train.py"
+SUPERVISION_T = "tests/test_runtime_supervision.py"
 PROTO = "tests/test_prototype_policies.py"
 ARCH = "tests/test_variants_arch.py"
 CATCH_T = "tests/test_catch.py"
@@ -247,6 +251,19 @@ MUTANTS = [
     Mutant("resume-global-step-reset", "--resume starts again from global step 0", CHECKPOINTS,
            "shared.base_step[0] = checkpoint.global_step", "shared.base_step[0] = 0",
            (CKPT, RES)),
+    Mutant("worker-ending-early-not-a-failure", "a worker that exits 0 before T_max ends "
+           "the run as done, not failed", SUPERVISION,
+           'early = name == "evaluator" or global_step < total',
+           'early = name == "evaluator" or global_step < 0 * total', (SUPERVISION_T,)),
+    Mutant("resume-drops-pending-evaluations", "a resumed run drops the evaluations its "
+           "checkpoint left pending (the evaluator was behind when the run stopped)", RUN,
+           "pending = list(checkpoint.pending_evaluations) if checkpoint else []",
+           "pending = []", (TRAIN,)),
+    Mutant("resume-evaluates-a-logged-step-again", "a resumed run takes again an evaluation "
+           "the killed run logged after its checkpoint", RUN,
+           "pending = [request for request in pending if request[0] not in logged]",
+           "pending = [request for request in pending if request[0] not in logged or True]",
+           (TRAIN,)),
     Mutant("resume-accepts-changed-flag", "--resume silently ignores a changed flag that "
            "changes the experiment", RESUME,
            "for name in sorted(given - set(COMMAND_LINE_ONLY)):",

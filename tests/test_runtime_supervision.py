@@ -78,3 +78,37 @@ def test_an_evaluator_that_dies_in_a_finished_runs_last_evaluations_is_a_failure
     finally:
         supervisor.restore_signal_handlers()
     assert supervisor.failures == ["evaluator exited with code 3"], supervisor.failures
+
+
+def test_a_process_that_ends_is_a_failure_unless_a_worker_reached_t_max():
+    """Exit 0 is what a worker returns at T_max. Before it (a worker loop that ended early), from
+    the evaluator at any time, or with any other code, a process that ended is a failure, named
+    with its pid and how it ended; one still running (None) is not."""
+    import threading
+
+    shared = SimpleNamespace(signalled=False, main_pid=os.getpid(), stop=threading.Event())
+    supervisor = runtime.supervision.Supervisor(
+        shared, {"worker 0": (lambda: None,), "evaluator": (lambda: None,)}
+    )
+    try:
+        pids = {name: process.pid for name, process in supervisor.processes.items()}
+        cases = [
+            ({"worker 0": 0, "evaluator": None}, 100, []),
+            ({"worker 0": None, "evaluator": None}, 50, []),
+            ({"worker 0": 0, "evaluator": None}, 99, [f"worker 0 (pid {pids['worker 0']}) "
+                                                     "exited with code 0"]),
+            ({"worker 0": 2, "evaluator": None}, 100, [f"worker 0 (pid {pids['worker 0']}) "
+                                                      "exited with code 2"]),
+            ({"worker 0": None, "evaluator": 0}, 100, [f"evaluator (pid {pids['evaluator']}) "
+                                                      "exited with code 0"]),
+            ({"worker 0": -9, "evaluator": None}, 50, [f"worker 0 (pid {pids['worker 0']}) "
+                                                      "was killed by SIGKILL"]),
+        ]  # fmt: skip
+        for codes, step, failures in cases:
+            supervisor.failures.clear()
+            supervisor.check_exits(codes, step, total=100)
+            assert supervisor.failures == failures, (codes, step)
+    finally:
+        for process in supervisor.processes.values():
+            process.join(30)
+        supervisor.restore_signal_handlers()

@@ -6,6 +6,7 @@ import signal
 import threading
 import time
 
+import pytest
 from conftest import load_script, main_exit, read_checkpoint
 
 import catch_env  # noqa: F401  (registers Catch-v0)
@@ -139,3 +140,51 @@ def test_an_evaluator_falling_behind_is_announced_once(tmp_path, monkeypatch, ca
     # step 0, one at each update that passes a mark of 10, 20, ..., 90, the final one
     assert steps[0] == 0 and steps == sorted(set(steps)) and steps[-1] >= 100, steps
     assert len(steps) >= 8, steps
+
+
+@pytest.mark.parametrize("logged", [False, True])
+def test_a_resumed_run_takes_the_evaluations_its_checkpoint_left_pending(
+    tmp_path, monkeypatch, capsys, logged
+):
+    """A run stopped while its evaluator was behind keeps, in its checkpoint, the networks of the
+    evaluations not yet taken; the resumed run takes each, of that network at that step, before
+    its own final one (else a resumed run's evaluations.csv would lose those steps), but not one
+    that the killed run logged after its checkpoint was written (logged: else twice)."""
+    import a3c_runtime as runtime
+    from conftest import evaluation_steps, shared_for, tiny_args
+
+    module = load_script("a3c_ff")
+    args = tiny_args(module, total_timesteps=300, eval_interval=10**8, eval_episodes=1)
+    shared = shared_for(module, args)
+    shared.base_step[0] = 200
+    pending = runtime.snapshots.copy_of(shared.model.state_dict())
+    first = next(iter(pending))
+    pending[first] = pending[first] + 1.0  # a network other than the checkpoint's own
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    snapshot = {"pending_evaluations": [(100, pending)]}
+    runtime.save_checkpoint(path, shared, args, 1.0, script="a3c_ff.py", snapshot=snapshot)
+    if logged:
+        (path.parent / "evaluations.csv").write_text(
+            "global_step,wall_time_s,mean_return,std_return,episodes\n100,1.0,0.0,0.0,1\n"
+        )
+    seen = tmp_path / "evaluated.txt"
+    evaluate = runtime.evaluation.evaluate_network
+
+    def recorded(model, envs, step, *rest, **kwargs):
+        weight = float(model.state_dict()[first].sum())
+        with open(seen, "a") as f:
+            f.write(f"{step} {weight!r}\n")
+        return evaluate(model, envs, step, *rest, **kwargs)
+
+    # (patched before the evaluator is forked: the evaluator's)
+    monkeypatch.setattr(runtime.evaluation, "evaluate_network", recorded)
+    code, err = main_exit(module, ["--resume", str(path)], monkeypatch, capsys)
+    assert code == 0, err
+    steps = evaluation_steps(path.parent)
+    assert steps[0] == 100 and len(steps) == 2 and steps[1] >= 300, steps
+    if logged:
+        assert not seen.exists()  # the evaluator had nothing to take
+    else:
+        step, weight = seen.read_text().split("\n")[0].split()
+        assert int(step) == 100 and float(weight) == float(pending[first].sum())
