@@ -329,6 +329,10 @@ MUTANTS = [
            BATCHED_BACKEND, "torch._foreach_mul_(self.square_avg, self.decay)",
            "torch._foreach_mul_(self.square_avg, 1.0)", (BATCH_T,)),
     # --- the sweep: run i's seed and sampled flags -----------------------------------------------
+    Mutant("sweep-restarts-cut-off-run", "a sweep started again runs a cut-off run from its "
+           "start, not on from its checkpoint", SWEEP,
+           'command = [command[0], "--resume", str(checkpoint)]', "command = [*command]",
+           ("tests/test_atari_figures.py", SWEEP_T)),
     Mutant("sweep-seeds-adjacent", "a sweep's run seeds are 1 apart, not 1000 (worker seeds of "
            "neighbouring runs collide)", SWEEP, "SEED_STRIDE = 1000  # run i", "SEED_STRIDE = 1  "
            "# run i", (SWEEP_T,)),
