@@ -61,6 +61,8 @@ CHECKPOINTS = ("agents/a3c_runtime/checkpoints.py",)
 RESUME = ("agents/a3c_runtime/resume.py",)
 RUN = ("agents/a3c_runtime/a3c.py",)
 SUPERVISION = ("agents/a3c_runtime/supervision.py",)
+EVALUATION = ("agents/a3c_runtime/evaluation.py",)
+SNAPSHOTS = ("agents/a3c_runtime/snapshots.py",)
 BATCHED_BACKEND = ("agents/a3c_tools/batched.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
@@ -78,6 +80,7 @@ CKPT = "tests/test_runtime_checkpoints.py"
 RES = "tests/test_runtime_resume.py"
 TRAIN = "tests/test_runtime_train.py"
 SUPERVISION_T = "tests/test_runtime_supervision.py"
+EVALUATION_T = "tests/test_runtime_evaluation.py"
 PROTO = "tests/test_prototype_policies.py"
 ARCH = "tests/test_variants_arch.py"
 CATCH_T = "tests/test_catch.py"
@@ -255,6 +258,15 @@ MUTANTS = [
            "the run as done, not failed", SUPERVISION,
            'early = name == "evaluator" or global_step < total',
            'early = name == "evaluator" or global_step < 0 * total', (SUPERVISION_T,)),
+    Mutant("evaluation-lstm-state-rows-shifted", "an LSTM's evaluation keeps the state rows "
+           "by position when an episode ends, so the episodes still running swap states",
+           EVALUATION,
+           "state = tuple(s[[running.index(i) for i in still_running]] for s in state)",
+           "state = tuple(s[: len(still_running)] for s in state)", (EVALUATION_T,)),
+    Mutant("evaluation-at-t-max-twice", "the update that reaches T_max exactly hands the "
+           "evaluator an evaluation of its own besides the run's final one", SNAPSHOTS,
+           "if step < self.total:  # the evaluation at T_max is the run's final one",
+           "if step <= self.total:  # the evaluation at T_max is the run's final one", (TRAIN,)),
     Mutant("resume-drops-pending-evaluations", "a resumed run drops the evaluations its "
            "checkpoint left pending (the evaluator was behind when the run stopped)", RUN,
            "pending = list(checkpoint.pending_evaluations) if checkpoint else []",

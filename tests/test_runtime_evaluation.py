@@ -109,6 +109,48 @@ class FixedPolicy(torch.nn.Module):
         return log_probs, torch.zeros(len(obs))
 
 
+class IdEnv:
+    """An episode of `length` steps whose frames show the env's `id`; the score is how often
+    action 1 was taken."""
+
+    def __init__(self, id: int, length: int):
+        self.id, self.length = id, length
+
+    def reset(self, seed=None):
+        self.t, self.ones = 0, 0
+        return np.full((4, 84, 84), self.id, dtype=np.uint8), {}
+
+    def step(self, action):
+        self.t, self.ones = self.t + 1, self.ones + (action == 1)
+        obs = np.full((4, 84, 84), self.id, dtype=np.uint8)
+        episode = {"r": float(self.ones), "l": self.t}
+        return obs, 0.0, self.t == self.length, False, {"episode": episode}
+
+
+class RowSums(torch.nn.Module):
+    """A recurrent policy whose state row sums the ids its episode's frames show: argmax pi is
+    action 1 exactly when the sum is a multiple of the frame's id, as it is while the row holds
+    its own episode's state (the ids are primes)."""
+
+    def initial_state(self, n):
+        return (torch.zeros(n),)
+
+    def forward(self, batch, state):
+        ids = batch[0, :, 0, 0, 0].double()
+        sums = state[0] + ids
+        own = (sums % ids == 0)[:, None]
+        log_probs = torch.where(own, torch.tensor([-5.0, 0.0]), torch.tensor([0.0, -5.0]))
+        return log_probs[None], torch.zeros(1, len(ids)), (sums,)
+
+
+def test_a_recurrent_evaluation_keeps_each_running_episodes_own_state_row():
+    """Episodes of different lengths in one batched evaluation (as on Atari): when one ends,
+    each episode still running keeps its own state row, not the row at its new position."""
+    envs = [IdEnv(id, length) for id, length in ((2, 2), (3, 6), (5, 4), (7, 9))]
+    scores = runtime.play_episodes(RowSums(), envs, greedy=True)
+    assert scores.tolist() == [2.0, 6.0, 4.0, 9.0]
+
+
 def test_greedy_evaluation_plays_argmax_pi():
     """--eval-greedy: action 1 (pi 0.6) at every step; sampling (seeded) takes action 0 about
     40% of the time."""

@@ -188,3 +188,17 @@ def test_a_resumed_run_takes_the_evaluations_its_checkpoint_left_pending(
     else:
         step, weight = seen.read_text().split("\n")[0].split()
         assert int(step) == 100 and float(weight) == float(pending[first].sum())
+
+
+def test_a_run_evaluates_at_each_mark_and_once_at_its_end(tmp_path, monkeypatch, capsys):
+    """One worker on Catch (an update every 15 steps here), T_max 90, an evaluation every 30
+    steps: step 0, the marks 30 and 60, and the final evaluation at T_max, once (the mark that
+    T_max itself reaches is the final one, not an evaluation of its own)."""
+    from conftest import evaluation_steps
+
+    run_dir = tmp_path / "run"
+    flags = ["--num-workers", "1", "--total-timesteps", "90", "--eval-interval", "30",
+             "--eval-episodes", "1", "--log-interval", "60", "--run-dir", str(run_dir)]  # fmt: skip
+    code, err = main_exit(load_script("a3c_ff"), flags, monkeypatch, capsys)
+    assert code == 0, err
+    assert evaluation_steps(run_dir) == [0, 30, 60, 90]
