@@ -267,6 +267,10 @@ MUTANTS = [
            "evaluator an evaluation of its own besides the run's final one", SNAPSHOTS,
            "if step < self.total:  # the evaluation at T_max is the run's final one",
            "if step <= self.total:  # the evaluation at T_max is the run's final one", (TRAIN,)),
+    Mutant("resume-of-a-run-ended-at-t-max-runs-again", "a run that ended exactly at T_max is "
+           "not finished when resumed: it evaluates its end again", RUN,
+           "    return step >= args.total_timesteps and",
+           "    return step > args.total_timesteps and", (TRAIN,)),
     Mutant("resume-drops-pending-evaluations", "a resumed run drops the evaluations its "
            "checkpoint left pending (the evaluator was behind when the run stopped)", RUN,
            "pending = list(checkpoint.pending_evaluations) if checkpoint else []",

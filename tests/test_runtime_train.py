@@ -190,15 +190,25 @@ def test_a_resumed_run_takes_the_evaluations_its_checkpoint_left_pending(
         assert int(step) == 100 and float(weight) == float(pending[first].sum())
 
 
-def test_a_run_evaluates_at_each_mark_and_once_at_its_end(tmp_path, monkeypatch, capsys):
+def test_a_run_evaluates_at_each_mark_and_once_at_its_end_and_resumed_changes_nothing(
+    tmp_path, monkeypatch, capsys
+):
     """One worker on Catch (an update every 15 steps here), T_max 90, an evaluation every 30
     steps: step 0, the marks 30 and 60, and the final evaluation at T_max, once (the mark that
-    T_max itself reaches is the final one, not an evaluation of its own)."""
+    T_max itself reaches is the final one, not an evaluation of its own). Resumed, the run that
+    ended exactly at T_max is finished: it says so and writes nothing."""
     from conftest import evaluation_steps
 
+    module = load_script("a3c_ff")
     run_dir = tmp_path / "run"
     flags = ["--num-workers", "1", "--total-timesteps", "90", "--eval-interval", "30",
              "--eval-episodes", "1", "--log-interval", "60", "--run-dir", str(run_dir)]  # fmt: skip
-    code, err = main_exit(load_script("a3c_ff"), flags, monkeypatch, capsys)
+    code, err = main_exit(module, flags, monkeypatch, capsys)
     assert code == 0, err
     assert evaluation_steps(run_dir) == [0, 30, 60, 90]
+    files = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()}
+    argv = ["--resume", str(run_dir / "checkpoint.pt")]
+    code, _ = main_exit(module, argv, monkeypatch, capsys, keep_out=True)
+    out = capsys.readouterr().out
+    assert code == 0 and out.startswith("run run is finished: step 90"), out
+    assert {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()} == files
