@@ -26,6 +26,11 @@ def test_defaults_and_validation():
     assert runtime.resolve_defaults(a3c.Args(grad_clip_mode="global-norm")).grad_clip == 25.0
     atari = runtime.resolve_defaults(a3c.Args(env="BreakoutNoFrameskip-v4"))
     assert (atari.total_timesteps, atari.eval_interval, atari.scale_obs) == (10**8, 10**6, True)
+    # a checkpoint at every evaluation unless told otherwise, on either kind of env
+    assert (catch.checkpoint_interval, atari.checkpoint_interval) == (50_000, 10**6)
+    given = runtime.resolve_defaults(a3c.Args(eval_interval=7000))
+    assert given.checkpoint_interval == 7000
+    assert runtime.resolve_defaults(a3c.Args(checkpoint_interval=300)).checkpoint_interval == 300
     with pytest.raises(runtime.UsageError, match="--gamma must be in"):
         runtime.resolve_defaults(a3c.Args(gamma=1.5))
     with pytest.raises(runtime.UsageError, match="unknown --env"):
