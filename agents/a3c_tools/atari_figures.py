@@ -461,9 +461,9 @@ def list_figures(figures: list[Figure]) -> str:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    import os
+    from a3c_tools.sweep import cpu_count
 
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cores = cpu_count()
     parser = figure_sweeps.figure_parser(
         "atari_figures",
         "%(prog)s FIG [FIG ...] --out OUT --seeds N --steps S [options]\n"

@@ -83,7 +83,7 @@ from a3c_tools import atari_figures as af
 from a3c_tools.figure_sweeps import DataError, Parser, execute
 from a3c_tools.paired import read_rows
 from a3c_tools.sweep import UsageError as SweepUsageError
-from a3c_tools.sweep import read_config
+from a3c_tools.sweep import cpu_count, read_config
 
 try:
     import tomllib
@@ -410,7 +410,7 @@ def log_sweep(plan: Path, item: Item, sweep: Sweep, before: int, started: float)
     stamp = "%Y-%m-%d %H:%M:%S"
     row = [item.id, str(sweep.out), time.strftime(stamp, time.gmtime(started)),
            time.strftime(stamp, time.gmtime()), f"{time.time() - started:.0f}", str(before),
-           str(len(read_rows(sweep.out))), ran_on(sweep.command), str(os.cpu_count())]  # fmt: skip
+           str(len(read_rows(sweep.out))), ran_on(sweep.command), str(cpu_count())]  # fmt: skip
     lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
     if not lines:
         lines = ["item\tout\tstarted_utc\tended_utc\twall_s\truns_before\truns_after\tcpu\tcores\n"]
