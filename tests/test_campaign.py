@@ -558,6 +558,32 @@ def test_the_cpu_column_says_whether_the_cpu_has_native_bf16(monkeypatch, native
     assert campaign.cpu_model().endswith(", native bf16") is native
 
 
+@pytest.mark.parametrize("native", [True, False])
+def test_an_item_that_needs_native_bf16_runs_only_where_the_cpu_has_it(
+    tmp_path, monkeypatch, capsys, native
+):
+    """An Atari item whose runs take --precision auto (bf16 at K > 1 on a CPU with native bf16,
+    fp32 elsewhere) and says `needs_native_bf16`: on a CPU without it, its sweeps are not
+    started (a line says why) and the plan is not done; on one with it, they run."""
+    from a3c_runtime import flags
+
+    monkeypatch.setattr(flags, "native_bf16", lambda: native)
+    plan = write_plan(
+        tmp_path, pong_item(tmp_path / "atari", ["vf1.0"]) + "needs_native_bf16 = true\n"
+    )
+    ran = []
+    monkeypatch.setattr(campaign, "execute", lambda command: (ran.append(command[:2]), (0, ""))[1])
+    result = run_main(campaign.main, [str(plan)])
+    assert result.returncode == 1  # not done: either its runs are left, or the stand-in ran none
+    assert bool(ran) is native
+    assert ("== b: not run on this CPU" in result.stdout) is not native, result.stdout
+    bad = write_plan(
+        tmp_path, pong_item(tmp_path / "atari", ["vf1.0"]) + 'needs_native_bf16 = "yes"\n'
+    )
+    refused = run_main(campaign.main, [str(bad)])
+    assert refused.returncode == 2 and "needs_native_bf16 must be true or false" in refused.stderr
+
+
 def test_batchable_last_runs_what_a_gpu_could_not_batch_first(tmp_path, monkeypatch):
     """--batchable-last: the Catch sweeps the batched backend takes run after every other sweep
     (here the future-work line of the same item and the Atari item after it); without it the

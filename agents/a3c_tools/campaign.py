@@ -25,7 +25,11 @@ Four kinds of item:
 - atari: atari_figures lines of one figure and game over `seeds` seeds of `steps` steps (run
   seeds `seed`, `seed` + 1000, ...: atari_figures' 1, 1001, ... unless the item names one); after
   each of its sweeps the figure is drawn again (`atari_figures FIG --plot-only`), which writes
-  the figure's results.csv that the claims page's Atari rows read.
+  the figure's results.csv that the claims page's Atari rows read. Its runs take the Atari
+  command's `--precision auto` (bf16 at 16 envs a worker on a CPU with native bf16, fp32
+  elsewhere); `needs_native_bf16 = true` runs the item only on a CPU with native bf16 (elsewhere
+  a line says so and the item waits), so that a line's runs do not change precision with the
+  host.
 
 Each sweep invocation has a row in SWEEPS.tsv beside the plan: its item, folder, start and end
 (UTC), wall time, the runs it held before and after, and the CPU model (with ", native
@@ -115,6 +119,7 @@ class Item:
     sweeps: list[Sweep]
     cpu_hours_per_run: float | None
     draw: list[str] | None = None  # an atari item's figure, drawn after each of its sweeps
+    needs_native_bf16: bool = False  # its runs only where --precision auto gives bf16 (below)
 
 
 def flag_value(words: list[str], *names: str) -> str | None:
@@ -248,7 +253,11 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
     if kind == "atari":  # the figure's results.csv is what the claims page's Atari rows read
         draw = ["-m", "a3c_tools.atari_figures", entry["figure"], "--out", entry["out"],
                 "--plot-only"]  # fmt: skip
-    return Item(item_id, kind, title, sweeps, None if per_run is None else float(per_run), draw)
+    needs = entry.get("needs_native_bf16", False)
+    if not isinstance(needs, bool):
+        raise DataError(f"{where}: needs_native_bf16 must be true or false (got {needs!r})")
+    per_run = None if per_run is None else float(per_run)
+    return Item(item_id, kind, title, sweeps, per_run, draw, needs)
 
 
 def load_plan(plan: Path) -> list[Item]:
@@ -385,12 +394,18 @@ def ran_on(command: list[str]) -> str:
     return f"batched on {device}; {cpu_model()}"
 
 
+def native_bf16() -> bool:
+    """Whether this CPU computes bf16 natively, so that --precision auto gives bf16 at K > 1
+    (a3c_runtime.flags.native_bf16, imported only when asked: it imports torch)."""
+    from a3c_runtime.flags import native_bf16 as native
+
+    return native()
+
+
 def cpu_model() -> str:
     """The CPU's model name (as lscpu prints it, from /proc/cpuinfo), for the record of where
     each run ran, and "native bf16" where it has it: two VMs both called "AMD EPYC", one with
     and one without, run `--precision auto` in different precisions at K > 1."""
-    from a3c_runtime.flags import native_bf16
-
     name = platform.processor() or "unknown"
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -556,6 +571,12 @@ def main(argv: list[str] | None = None) -> int:
     ran: set[str] = set()
     for number, one_pass in enumerate(order, 1):
         for item, sweeps in one_pass:
+            if item.needs_native_bf16 and not native_bf16():
+                if any(len(read_rows(sweep.out)) < sweep.runs for sweep in sweeps):
+                    print(f"== {item.id}: not run on this CPU: its runs take --precision auto, "
+                          "which is bf16 only on a CPU with native bf16 (as its runs so far); "
+                          "here they would compute in fp32", flush=True)  # fmt: skip
+                continue
             for sweep in sweeps:
                 before = len(read_rows(sweep.out))
                 if before >= sweep.runs:
