@@ -392,6 +392,12 @@ MUTANTS = [
     Mutant("confirmatory-atari-failed-never-in", "a failed Atari run of the study never counts "
            "as in, so the one look waits for ever", CONFIRMATORY, "failed.add(seed)",
            "ok.discard(seed)", (CONFIRM_T,)),
+    Mutant("confirmatory-atari-failed-pair-kept", "a study's Atari run that its line records "
+           "as failed is paired all the same where the figure's table has its evaluations",
+           CONFIRMATORY,
+           'ok = [atari_seeds(spec, int(spec["runs"]), name)[0] for name',
+           'ok = [set.union(*atari_seeds(spec, int(spec["runs"]), name)) for name',
+           (CONFIRM_T,)),
     Mutant("confirmatory-atari-any-steps", "an Atari run counts as in at any steps, a shorter "
            "run taken for a finished one", CONFIRMATORY,
            'elif int(row.get("final_step") or 0) >= int(spec["steps"]):',

@@ -285,8 +285,14 @@ def test_the_one_look_at_an_atari_claim_pairs_the_studys_seeds_at_its_steps(tmp_
     assert confirmatory.complete(spec, 3)
     [p3] = confirmatory.outcomes(plan)
     assert (p3.pairs, p3.effect) == (2, pytest.approx(-3.5))
-    steps["lws"][9800] = 2000080  # it finished instead: in the lines, but not yet in the table
-    write_lines()
+    steps["lws"][9800] = 2000080  # failed after its last evaluation: the figure's table has it
+    write_lines(failed=9800)
+    table.write_text(table.read_text().replace("lws,9800,25.0,1000000", "lws,9800,25.0,2000080"))
+    assert confirmatory.complete(spec, 3)
+    [p3] = confirmatory.outcomes(plan)
+    assert (p3.pairs, p3.effect) == (2, pytest.approx(-3.5))
+    write_lines()  # it finished instead: in the lines, but not yet in the table
+    table.write_text(table.read_text().replace("lws,9800,25.0,2000080", "lws,9800,25.0,1000000"))
     assert confirmatory.outcomes(plan) is None
     table.write_text(table.read_text().replace("lws,9800,25.0,1000000", "lws,9800,25.0,2000080"))
     [p3] = confirmatory.outcomes(plan)

@@ -190,8 +190,11 @@ def atari_differences(spec: dict) -> np.ndarray:
                 continue
             finals.setdefault(row["line"], {})[int(row["seed"])] = float(row["final_score"])
     base, line = finals.get(spec["baseline"], {}), finals.get(spec["line"], {})
-    seeds = sorted(set(base) & set(line))
-    return np.array([line[s] - base[s] for s in seeds])
+    seeds = set(base) & set(line)
+    if wanted is not None:  # the study's: a run its line's table records as failed is left out
+        ok = [atari_seeds(spec, int(spec["runs"]), name)[0] for name in atari_lines(spec)]
+        seeds &= set.intersection(*ok)
+    return np.array([line[s] - base[s] for s in sorted(seeds)])
 
 
 def differences(spec: dict) -> np.ndarray:
