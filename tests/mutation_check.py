@@ -58,6 +58,10 @@ GLPQ_NOT_GROWTH = GLPQ[:3]  # growth's glpq_log_policy has its own form (free sl
 LWS = scripts("a3c_lws", "future_work/a3c_lws_online")
 HOGWILD = ("agents/a3c_runtime/hogwild.py",)
 CHECKPOINTS = ("agents/a3c_runtime/checkpoints.py",)
+RUN_FOLDER = ("agents/a3c_runtime/run_folder.py",)
+RUN_LOG = ("agents/a3c_runtime/run_log.py",)
+FLAGS = ("agents/a3c_runtime/flags.py",)
+CAMPAIGN = ("agents/a3c_tools/campaign.py",)
 RESUME = ("agents/a3c_runtime/resume.py",)
 RUN = ("agents/a3c_runtime/a3c.py",)
 SUPERVISION = ("agents/a3c_runtime/supervision.py",)
@@ -91,6 +95,10 @@ COMPARE_T = "tests/test_compare.py"
 CLAIMS_T = "tests/test_thesis_claims.py"
 CONFIRM_T = "tests/test_confirmatory.py"
 CAMPAIGN_T = "tests/test_campaign.py"
+RUN_FOLDER_T = "tests/test_runtime_run_folder.py"
+RUN_LOG_T = "tests/test_runtime_run_log.py"
+FLAGS_T = "tests/test_runtime_flags.py"
+PRECISION_T = "tests/test_precision.py"
 
 # fmt: off
 MUTANTS = [
@@ -406,6 +414,77 @@ MUTANTS = [
            "claim's runs are in, not all", CONFIRMATORY,
            'if not all(complete(c["test"], c["runs"]) for c in claims):',
            'if not any(complete(c["test"], c["runs"]) for c in claims):', (CONFIRM_T,)),
+    # --- the campaign runner, the run folder and the run log (run machinery) -----------------
+    Mutant("campaign-goes-on-after-sigterm", "a campaign whose sweep was stopped by a signal "
+           "(exit 130) goes on to the next sweep instead of stopping", CAMPAIGN,
+           "if code in (2, 130):", "if code in (2,):", (CAMPAIGN_T,)),
+    Mutant("campaign-reruns-a-done-sweep", "a sweep that already holds its runs is started "
+           "again (and logged) at every campaign start", CAMPAIGN,
+           "if before >= sweep.runs:", "if before > sweep.runs:", (CAMPAIGN_T,)),
+    Mutant("campaign-batchable-first", "--batchable-last runs the sweeps a GPU could batch "
+           "first, not last", CAMPAIGN, "[s for s in item.sweeps if batchable(s) == second]",
+           "[s for s in item.sweeps if batchable(s) != second]", (CAMPAIGN_T,)),
+    Mutant("campaign-local-runs-batched", "a campaign on the process backend runs its Catch "
+           "sweeps batched all the same", CAMPAIGN,
+           'elif backend == "batched" and batchable(sweep):', "elif batchable(sweep):",
+           (CAMPAIGN_T,)),
+    Mutant("campaign-progress-counts-first-look", "the progress counts a line's runs from before "
+           "the plan as the plan's own", CAMPAIGN,
+           "new_rows = rows[sweep.first_look :][: sweep.runs - sweep.first_look]",
+           "new_rows = rows[: sweep.runs - sweep.first_look]", (CAMPAIGN_T,)),
+    Mutant("campaign-wall-time-double-counts", "an item's wall time counts sweeps side by side "
+           "twice", CAMPAIGN, "total += max(0.0, end - max(start, reached))",
+           "total += max(0.0, end - start)", (CAMPAIGN_T,)),
+    Mutant("campaign-log-row-added-again", "a running sweep's SWEEPS.tsv row is added again at "
+           "each update instead of kept current", CAMPAIGN,
+           'lines[mine[-1]] = "\\t".join(row) + "\\n"',
+           'lines.insert(mine[-1] + 1, "\\t".join(row) + "\\n")', (CAMPAIGN_T,)),
+    Mutant("campaign-extend-other-seed", "an extended line's new runs take the default sweep "
+           "seed, not the line's own, so its run i is not the run it drew before", CAMPAIGN,
+           'command += ["--seed", str(config["seed"])]', 'command += ["--seed", "1"]',
+           (CAMPAIGN_T,)),
+    Mutant("campaign-exit-0-unfinished", "a campaign that ends with its plan unfinished exits 0",
+           CAMPAIGN, "return 1 if failed else 0 if finished else 1",
+           "return 1 if failed else 0", (CAMPAIGN_T,)),
+    Mutant("campaign-bf16-gate-inverted", "an item that needs native bf16 runs only where the "
+           "CPU lacks it", CAMPAIGN, "if item.needs_native_bf16 and not native_bf16():",
+           "if item.needs_native_bf16 and native_bf16():", (CAMPAIGN_T,)),
+    Mutant("campaign-atari-figure-not-drawn", "an Atari item's figure table is not drawn after "
+           "its sweep, so the claims page reads stale runs", CAMPAIGN,
+           "failed |= execute(item.draw)[0] != 0\n            # an item",
+           "failed |= False\n            # an item", (CAMPAIGN_T,)),
+    Mutant("run-folder-mixes-runs", "a new run goes into a folder that holds another run",
+           RUN_FOLDER, "            check_no_run_in(path)\n",
+           "            check_no_run_in(path / \"none\")\n", (RUN_FOLDER_T,)),
+    Mutant("run-folder-shared-lock", "two processes can train into one run folder at once",
+           RUN_FOLDER, "fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)",
+           "fcntl.lockf(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)", (RUN_FOLDER_T,)),
+    Mutant("run-log-drops-checkpoint-step-row", "a resumed run drops the evaluation row of its "
+           "checkpoint's own step", RUN_LOG, "if int(line.split(\",\", 1)[0]) <= step]",
+           "if int(line.split(\",\", 1)[0]) < step]", (RUN_LOG_T, RES)),
+    Mutant("run-log-half-row-kept", "a row of evaluations.csv whose write failed is left half "
+           "written", RUN_LOG, "os.ftruncate(self.csv_fd, size)", "os.fsync(self.csv_fd)",
+           (RUN_LOG_T,)),
+    Mutant("run-log-wall-time-from-resume", "a resumed run's wall time leaves out the time "
+           "before its resume (the campaign's CPU-hours read it)", RUN_LOG,
+           "return self.wall_offset + time.time() - self.start",
+           "return time.time() - self.start", (RUN_LOG_T, RES)),
+    Mutant("run-log-no-purge", "a resumed run's TensorBoard shows the killed run's scalars after "
+           "the checkpoint twice", RUN_LOG,
+           "purge_step=resumed_step + 1 if resumed_step else None", "purge_step=None",
+           (RUN_LOG_T, RES)),
+    Mutant("precision-auto-bf16-at-one-env", "--precision auto computes in bf16 at one env a "
+           "worker (the thesis's algorithm, fp32 on every CPU)", FLAGS,
+           'return "bf16" if envs_per_worker > 1 and native_bf16() else "fp32"',
+           'return "bf16" if envs_per_worker >= 1 and native_bf16() else "fp32"',
+           (FLAGS_T, PRECISION_T)),
+    Mutant("precision-bf16-learn-acts-in-bf16", "--precision bf16-learn acts in bf16 too",
+           FLAGS, 'enabled=precision == "bf16"),', 'enabled=precision != "fp32"),',
+           (PRECISION_T, FLAGS_T)),
+    Mutant("checkpoint-interval-not-eval", "the checkpoint interval defaults to a fixed step "
+           "count, not the evaluation interval", FLAGS,
+           "args.checkpoint_interval = args.eval_interval",
+           "args.checkpoint_interval = 100_000", (FLAGS_T, RES)),
 ]
 # fmt: on
 

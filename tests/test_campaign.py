@@ -63,12 +63,13 @@ def tmp_path_is_part_of_the_clone(tmp_path, monkeypatch):
 
 @pytest.fixture
 def line(tmp_path):
-    """A committed line of 2 runs, made by sweep.py with the stand-in agent."""
+    """A committed line of 2 runs, made by sweep.py with the stand-in agent (its seed is not
+    sweep.py's default, so that an extension that lost the line's own seed shows)."""
     agents = tmp_path / "agents"
     agents.mkdir()
     (agents / "a3c_ff.py").write_text(FAKE_AGENT)
     out = tmp_path / "line"
-    args = [str(agents / "a3c_ff.py"), "--out", str(out), "--runs", "2", "--seed", "1",
+    args = [str(agents / "a3c_ff.py"), "--out", str(out), "--runs", "2", "--seed", "7",
             "--total-timesteps", "100", "--sample", "learning-rate=loguniform:1e-5:1e-2",
             "--", "--eval-interval", "50"]  # fmt: skip
     assert run_main(sweep.main, args).returncode == 0
@@ -122,6 +123,7 @@ def test_extend_keeps_the_first_runs_adds_the_rest_and_resumes(line, tmp_path, m
     # run i draws what a 4-run sweep of the same configuration draws
     fresh = sweep.plan_runs(json.loads((line / "sweep.json").read_text()), 4)
     assert [r["learning-rate"] for r in after] == [r.sampled["learning-rate"] for r in fresh]
+    assert [r["seed"] for r in after] == ["7", "1007", "2007", "3007"]  # the line's own seeds
     progress = (plan.parent / "PROGRESS.md").read_text()
     assert "| a1: the line to 4 runs | 2 of 2 |" in progress
     assert "**2 of 2**" in progress
@@ -627,3 +629,18 @@ def test_a_rate_from_without_committed_runs_is_a_bad_plan(tmp_path):
     result = run_main(campaign.main, [str(plan), "--status"])
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
     assert "rate_from: no committed runs' rate" in result.stderr
+
+
+@pytest.mark.parametrize("code", [130, 2])
+def test_a_sweep_stopped_by_a_signal_or_refused_stops_the_campaign(tmp_path, monkeypatch, code):
+    """A sweep that exits 130 (stopped by Ctrl-C or SIGTERM: its runs checkpointed) or 2 (its
+    command refused) ends the campaign with that code: the next sweep is not started, so a
+    session's end stops the campaign instead of its next run."""
+    plan = ff_and_online_plan(tmp_path)
+    ran = []
+    monkeypatch.setattr(
+        campaign, "run_logged", lambda plan, item, sweep: ran.append(sweep.out) or code
+    )
+    monkeypatch.setattr(campaign, "execute", lambda command: (0, ""))
+    assert run_main(campaign.main, [str(plan)]).returncode == code
+    assert [p.name for p in ran] == ["ff"]

@@ -122,3 +122,23 @@ def test_rows_after_a_checkpoints_step_are_dropped_and_counted(tmp_path, capsys)
     )
     runtime.run_log.drop_rows_after(csv_path, 100)  # nothing after it: nothing said
     assert capsys.readouterr().out == ""
+
+
+def test_a_resumed_run_hides_the_scalars_logged_after_its_checkpoint(tmp_path):
+    """A run killed after its checkpoint at step 100 had logged step 150; resumed from 100, it
+    logs 150 again. TensorBoard shows each step once, the resumed run's (the writer's purge
+    step), not the killed run's beside it."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    args = SimpleNamespace(total_timesteps=4000)
+    killed = runtime.RunLog(tmp_path, args, wall_offset=0.0)
+    for step in (50, 100, 150):
+        killed.scalars({"charts/SPS": float(step)}, step)
+    killed.close()
+    resumed = runtime.RunLog(tmp_path, args, wall_offset=1.0, resumed_step=100)
+    resumed.scalars({"charts/SPS": 151.0}, 150)
+    resumed.close()
+    events = EventAccumulator(str(tmp_path))
+    events.Reload()
+    shown = [(e.step, e.value) for e in events.Scalars("charts/SPS")]
+    assert shown == [(50, 50.0), (100, 100.0), (150, 151.0)]
