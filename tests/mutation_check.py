@@ -485,6 +485,33 @@ MUTANTS = [
            "count, not the evaluation interval", FLAGS,
            "args.checkpoint_interval = args.eval_interval",
            "args.checkpoint_interval = 100_000", (FLAGS_T, RES)),
+    Mutant("sweep-score-counts-step-0", "a run's score counts the untrained network's "
+           "evaluation at step 0 among its final 5", SWEEP,
+           'if row.get("global_step") != "0"]', 'if row.get("global_step") != "none"]',
+           (SWEEP_T,)),
+    Mutant("sweep-score-final-6", "a run's score is the mean of its final 6 evaluations, not 5",
+           SWEEP, "final = (trained or returns)[-SCORE_LAST:]",
+           "final = (trained or returns)[-SCORE_LAST - 1 :]", (SWEEP_T,)),
+    Mutant("sweep-resumed-wall-time-last-part", "a resumed run's wall time in results.csv is "
+           "its last part's only (the campaign's CPU-hours read it)", SWEEP,
+           'round(max(result["wall_time_s"], scores.pop("clock_s")), 2)',
+           'round(min(result["wall_time_s"], scores.pop("clock_s")), 2)', (SWEEP_T,)),
+    Mutant("sweep-interrupted-run-recorded", "a run the sweep stopped (Ctrl-C, SIGTERM) is "
+           "recorded as failed, so it never resumes", SWEEP,
+           'if result["interrupted"] or result.get("in_use"):', 'if result.get("in_use"):',
+           (SWEEP_T,)),
+    Mutant("sweep-stopped-run-taken-for-finished", "a run that a signal stopped before its "
+           "budget (its own last line says so) is recorded as ok", SWEEP,
+           'elif stdout_lines and stdout_lines[-1].startswith("stopped by"):',
+           'elif stdout_lines and stdout_lines[-1].startswith("stopped by nothing"):',
+           (SWEEP_T,)),
+    Mutant("sweep-stopped-exits-0", "a sweep stopped by a signal exits 0, taken for a finished "
+           "one", SWEEP, "start again to finish\", flush=True)\n        return 130",
+           "start again to finish\", flush=True)\n        return 0", (SWEEP_T, CAMPAIGN_T)),
+    Mutant("sweep-auto-precision-foreign", "a --precision auto run begun on another host is "
+           "taken for another run's checkpoint and refused", SWEEP,
+           'skip = ("precision",) if getattr(given, "precision", None) == "auto" else ()',
+           "skip = ()", ("tests/test_safe_loading.py", SWEEP_T)),
 ]
 # fmt: on
 
