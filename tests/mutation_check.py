@@ -445,7 +445,7 @@ MUTANTS = [
            (CAMPAIGN_T,)),
     Mutant("campaign-exit-0-unfinished", "a campaign that ends with its plan unfinished exits 0",
            CAMPAIGN, "return 1 if failed else 0 if finished else 1",
-           "return 1 if failed else 0", (CAMPAIGN_T,)),
+           "return 1 if failed else 0 if finished is not None else 1", (CAMPAIGN_T,)),
     Mutant("campaign-bf16-gate-inverted", "an item that needs native bf16 runs only where the "
            "CPU lacks it", CAMPAIGN, "if item.needs_native_bf16 and not native_bf16():",
            "if item.needs_native_bf16 and native_bf16():", (CAMPAIGN_T,)),
@@ -463,7 +463,8 @@ MUTANTS = [
            "checkpoint's own step", RUN_LOG, "if int(line.split(\",\", 1)[0]) <= step]",
            "if int(line.split(\",\", 1)[0]) < step]", (RUN_LOG_T, RES)),
     Mutant("run-log-half-row-kept", "a row of evaluations.csv whose write failed is left half "
-           "written", RUN_LOG, "os.ftruncate(self.csv_fd, size)", "os.fsync(self.csv_fd)",
+           "written", RUN_LOG, "os.ftruncate(self.csv_fd, size)",
+           "os.ftruncate(self.csv_fd, max(size, os.fstat(self.csv_fd).st_size))",
            (RUN_LOG_T,)),
     Mutant("run-log-wall-time-from-resume", "a resumed run's wall time leaves out the time "
            "before its resume (the campaign's CPU-hours read it)", RUN_LOG,
@@ -471,7 +472,8 @@ MUTANTS = [
            "return time.time() - self.start", (RUN_LOG_T, RES)),
     Mutant("run-log-no-purge", "a resumed run's TensorBoard shows the killed run's scalars after "
            "the checkpoint twice", RUN_LOG,
-           "purge_step=resumed_step + 1 if resumed_step else None", "purge_step=None",
+           "purge_step=resumed_step + 1 if resumed_step else None",
+           "purge_step=resumed_step + 1 if resumed_step < 0 else None",
            (RUN_LOG_T, RES)),
     Mutant("precision-auto-bf16-at-one-env", "--precision auto computes in bf16 at one env a "
            "worker (the thesis's algorithm, fp32 on every CPU)", FLAGS,
