@@ -1,5 +1,6 @@
 """a3c_runtime.run_log: the console's progress lines."""
 
+import time
 from types import SimpleNamespace
 
 import a3c_runtime as runtime
@@ -135,6 +136,9 @@ def test_a_resumed_run_hides_the_scalars_logged_after_its_checkpoint(tmp_path):
     for step in (50, 100, 150):
         killed.scalars({"charts/SPS": float(step)}, step)
     killed.close()
+    # TensorBoard reads a folder's event files in name order, and a name starts with its second:
+    # a second later, the resumed run's file sorts after the killed run's, as it would in use
+    time.sleep(1.1)
     resumed = runtime.RunLog(tmp_path, args, wall_offset=1.0, resumed_step=100)
     resumed.scalars({"charts/SPS": 151.0}, 150)
     resumed.close()
