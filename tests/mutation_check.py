@@ -288,6 +288,19 @@ MUTANTS = [
            "pending = [request for request in pending if request[0] not in logged]",
            "pending = [request for request in pending if request[0] not in logged or True]",
            (TRAIN,)),
+    Mutant("evaluator-behind-announced-too-late", "the console says that the evaluator is "
+           "behind only when it is ten times as far behind", RUN,
+           "if len(pending) > LATE and not behind[0]:",
+           "if len(pending) > 10 * LATE and not behind[0]:", (TRAIN,)),
+    Mutant("evaluator-behind-announced-at-each-request", "the console says that the evaluator "
+           "is behind again at each evaluation it is handed", RUN,
+           "behind[0] = len(pending) > LATE", "behind[0] = False", (TRAIN,)),
+    Mutant("evaluator-behind-checked-after-the-drain-only", "the main process checks whether "
+           "the evaluator is behind only after a whole drain, which may write checkpoints for "
+           "seconds while the evaluator catches up", RUN,
+           "                take_results()  # at each request: one drain may write checkpoints "
+           "for seconds\n",
+           "", (TRAIN,)),
     Mutant("resume-accepts-changed-flag", "--resume silently ignores a changed flag that "
            "changes the experiment", RESUME,
            "for name in sorted(given - set(COMMAND_LINE_ONLY)):",

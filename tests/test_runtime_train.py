@@ -111,20 +111,40 @@ def test_a_flag_given_before_resume_applies_to_the_resumed_run(tmp_path, monkeyp
 
 
 def test_an_evaluator_falling_behind_is_announced_once(tmp_path, monkeypatch, capsys):
-    """An evaluator slower than the training (here its first evaluation takes 4 s, while the
-    run hands it 9 more within about a second): the console says once that it is behind, and
-    every evaluation is taken all the same."""
+    """An evaluator slower than the training (here its first evaluation, step 0's, waits until
+    the run has handed it more than LATE others): the console says once that it is behind, and
+    every evaluation is taken all the same. The wait is for the requests, not a fixed time (on a
+    loaded machine the workers may take longer than any sleep to reach the marks). Each
+    checkpoint write takes 0.5 s here, as on a slow disk, so that one drain of the main process
+    lasts seconds while the evaluator catches up: the check comes at each request it hands over,
+    not only when the drain ends."""
     import a3c_runtime as runtime
 
-    evaluate, calls = runtime.evaluation.evaluate_network, []
+    evaluator, evaluate = runtime.a3c.evaluator, runtime.evaluation.evaluate_network
+    calls, queued = [], {}
+
+    def evaluator_seeing_its_requests(agent, shared, args, requests, *rest):
+        queued["requests"] = requests
+        return evaluator(agent, shared, args, requests, *rest)
 
     def slow_at_first(*args, **kwargs):
-        if not calls:
-            time.sleep(4.0)
+        deadline = time.time() + 60
+        while (
+            not calls and queued["requests"].qsize() <= runtime.a3c.LATE and time.time() < deadline
+        ):
+            time.sleep(0.05)
         calls.append(1)
         return evaluate(*args, **kwargs)
 
+    save_checkpoint = runtime.a3c.save_checkpoint
+
+    def slow_save_checkpoint(*args, **kwargs):
+        time.sleep(0.5)
+        return save_checkpoint(*args, **kwargs)
+
     # (patched before the evaluator is forked: the evaluator's)
+    monkeypatch.setattr(runtime.a3c, "evaluator", evaluator_seeing_its_requests)
+    monkeypatch.setattr(runtime.a3c, "save_checkpoint", slow_save_checkpoint)
     monkeypatch.setattr(runtime.evaluation, "evaluate_network", slow_at_first)
     run_dir = tmp_path / "run"
     flags = ["--num-workers", "1", "--total-timesteps", "100", "--eval-interval", "10",

@@ -142,21 +142,8 @@ def watch(
     final_states: dict[int, list] = {}  # each worker's state as its loop ended
     behind = [False]  # the evaluator is more than LATE evaluations behind (announced once)
 
-    def drain(every: bool = False) -> None:
-        """The workers' snapshots and the evaluator's results so far, in order (every: the
-        workers have ended, see StepMarks.receive)."""
-        while (event := shared.marks.receive(every)) is not None:
-            if event[0] == EVALUATE:
-                pending.append(event[1:])
-                requests.put(pickle.dumps(event[1:]))
-            elif event[0] == CHECKPOINT:
-                step, model, optimizer, workers = event[1:]
-                snapshot = {"model": model, "optimizer": optimizer, "global_step": step,
-                            "workers": workers, "pending_evaluations": list(pending)}  # fmt: skip
-                save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script,
-                                snapshot)  # fmt: skip
-            else:  # FINAL
-                final_states[event[1]] = event[2]
+    def take_results() -> None:
+        """Log the evaluator's results so far; then say, once, if it is behind."""
         while not evaluations.empty():
             result = evaluations.get()
             log.evaluation(result)
@@ -166,6 +153,24 @@ def watch(
             print(f"note: the evaluator is {len(pending)} evaluations behind the training "
                   f"({waiting}); each is taken all the same", flush=True)  # fmt: skip
         behind[0] = len(pending) > LATE
+
+    def drain(every: bool = False) -> None:
+        """The workers' snapshots and the evaluator's results so far, in order (every: the
+        workers have ended, see StepMarks.receive)."""
+        while (event := shared.marks.receive(every)) is not None:
+            if event[0] == EVALUATE:
+                pending.append(event[1:])
+                requests.put(pickle.dumps(event[1:]))
+                take_results()  # at each request: one drain may write checkpoints for seconds
+            elif event[0] == CHECKPOINT:
+                step, model, optimizer, workers = event[1:]
+                snapshot = {"model": model, "optimizer": optimizer, "global_step": step,
+                            "workers": workers, "pending_evaluations": list(pending)}  # fmt: skip
+                save_checkpoint(checkpoint_path, shared, args, log.wall_time(), agent.script,
+                                snapshot)  # fmt: skip
+            else:  # FINAL
+                final_states[event[1]] = event[2]
+        take_results()
 
     loop_ended = False
     try:
