@@ -350,6 +350,36 @@ def test_a_line_whose_run_folders_are_gone_is_drawn_from_its_kept_evaluations(fa
         ]
 
 
+@pytest.mark.parametrize("seed", [7800, "7800", None])
+def test_a_line_swept_from_its_own_seed_names_its_runs_by_their_seeds(fake, tmp_path, seed):
+    """A campaign item may sweep a line from a seed of its own (the confirmatory study's 7800):
+    its run i is seed 7800 + 1000 i, as its sweep.json says, not sweep.py's default 1 + 1000 i
+    (which would name the study's runs by seeds of other committed runs). A seed that is not a
+    whole number stops the drawing with one line, exit 2."""
+    out = tmp_path / "out"
+    line = out / "fig6.10" / "Pong" / "vf0.5"
+    header = "global_step,wall_time_s,mean_return,std_return,episodes\n"
+    for index in (0, 2):
+        run = line / "runs" / f"run-{index:04d}"
+        run.mkdir(parents=True)
+        (run / "evaluations.csv").write_text(header + f"0,1.0,{index}.0,0.0,10\n")
+    config = {"script": "a3c_ff.py", "samples": [], "total_timesteps": 2000000}
+    (line / "sweep.json").write_text(json.dumps({**config, "seed": seed} if seed else config))
+    result = run_tool("fig6.10", "--out", str(out), "--plot-only")
+    if seed == "7800":
+        errors = [row for row in result.stderr.splitlines() if row.strip()]
+        assert result.returncode == 2 and len(errors) == 1 and "'7800'" in errors[0], errors
+        assert not (out / "fig6.10" / "fig6.10.png").exists()
+        return
+    assert result.returncode == 0, result.stderr
+    with (out / "fig6.10" / "results.csv").open() as f:
+        seeds = [r["seed"] for r in csv.DictReader(f)]
+    with (line / "evaluations.csv").open() as f:
+        kept = [r["seed"] for r in csv.DictReader(f)]
+    expected = ["7800", "9800"] if seed else ["1", "2001"]  # no seed in sweep.json: sweep's 1
+    assert seeds == kept == expected
+
+
 def test_a_malformed_kept_evaluations_file_exits_2_with_one_line(fake, tmp_path):
     line = tmp_path / "out" / "fig6.10" / "Pong" / "vf0.5"
     line.mkdir(parents=True)

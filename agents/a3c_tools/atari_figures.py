@@ -67,7 +67,7 @@ import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import AGENTS, figure_sweeps, run_main
+from a3c_tools import AGENTS, figure_sweeps, run_main, sweep
 from a3c_tools.figure_sweeps import DataError, display, plural, positive_int
 
 DATA = Path(__file__).with_name("atari_figures.toml")
@@ -272,7 +272,7 @@ KEPT_COLUMNS = ["seed", "global_step", "mean_return", "episodes"]
 def read_tables(folder: Path) -> dict[int, list[dict[str, str]]]:
     """seed -> a line's evaluations (KEPT_COLUMNS): its kept evaluations.csv, and each run folder
     with an evaluation (runs/run-*/evaluations.csv) in place of its seed's rows; run i has
-    sweep.py's seed 1 + 1000 i. A DataError (one line) where the kept file is malformed."""
+    sweep.py's seed, line_seed + 1000 i. A DataError (one line) where a file is malformed."""
     tables: dict[int, list[dict[str, str]]] = {}
     kept = folder / KEPT
     if kept.exists():
@@ -284,13 +284,29 @@ def read_tables(folder: Path) -> dict[int, list[dict[str, str]]]:
             except (KeyError, TypeError, ValueError) as error:
                 raise DataError(f"{display(kept)} is malformed ({error!r}); "
                                 f"columns: {', '.join(KEPT_COLUMNS)}") from error  # fmt: skip
+    first = line_seed(folder)
     for path in sorted((folder / "runs").glob("run-*/evaluations.csv")):
-        seed = SEED + 1000 * int(path.parent.name.removeprefix("run-"))
+        seed = first + sweep.SEED_STRIDE * int(path.parent.name.removeprefix("run-"))
         with path.open(newline="") as f:
             table = [{**row, "seed": str(seed)} for row in csv.DictReader(f)]
         if table:
             tables[seed] = table
     return dict(sorted(tables.items()))
+
+
+def line_seed(folder: Path) -> int:
+    """Run 0's seed of a line's sweep: its sweep.json's (a campaign item may name its own, as
+    the confirmatory study's do), else sweep.py's default, SEED."""
+    config = folder / sweep.CONFIG_NAME
+    if not config.exists():
+        return SEED
+    try:
+        seed = sweep.read_config(config).get("seed", SEED)
+    except sweep.UsageError as error:
+        raise DataError(str(error)) from error
+    if type(seed) is not int:
+        raise DataError(f"{display(config)}: its seed is {seed!r}, not a whole number")
+    return seed
 
 
 def keep_tables(folder: Path, tables: dict[int, list[dict[str, str]]]) -> None:
