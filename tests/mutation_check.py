@@ -69,6 +69,7 @@ EVALUATION = ("agents/a3c_runtime/evaluation.py",)
 SNAPSHOTS = ("agents/a3c_runtime/snapshots.py",)
 BATCHED_BACKEND = ("agents/a3c_tools/batched.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
+ATARI_FIGURES = ("agents/a3c_tools/atari_figures.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
 CONFIRMATORY = ("agents/a3c_tools/confirmatory.py",)
 TOOLS = ("agents/a3c_tools/__init__.py",)
@@ -370,6 +371,10 @@ MUTANTS = [
            "start, not on from its checkpoint", SWEEP,
            'command = [command[0], "--resume", str(checkpoint)]', "command = [*command]",
            ("tests/test_atari_figures.py", SWEEP_T)),
+    Mutant("atari-figure-default-seed", "an Atari figure names a line's runs by sweep.py's "
+           "default seeds, not the seed its sweep ran from (a campaign item's own)",
+           ATARI_FIGURES, "first = line_seed(folder)", "first = SEED",
+           ("tests/test_atari_figures.py",)),
     Mutant("sweep-seeds-adjacent", "a sweep's run seeds are 1 apart, not 1000 (worker seeds of "
            "neighbouring runs collide)", SWEEP, "SEED_STRIDE = 1000  # run i", "SEED_STRIDE = 1  "
            "# run i", (SWEEP_T,)),
