@@ -419,10 +419,10 @@ MUTANTS = [
            "as in, so the one look waits for ever", CONFIRMATORY, "failed.add(seed)",
            "ok.discard(seed)", (CONFIRM_T,)),
     Mutant("confirmatory-atari-failed-pair-kept", "a study's Atari run that its line records "
-           "as failed is paired all the same where the figure's table has its evaluations",
-           CONFIRMATORY,
-           'ok = [atari_seeds(spec, int(spec["runs"]), name)[0] for name',
-           'ok = [set.union(*atari_seeds(spec, int(spec["runs"]), name)) for name',
+           "as failed is paired all the same where its table has its score (amended 2026-12-02, "
+           "when the look moved from the figure's table to the lines' own)", CONFIRMATORY,
+           'if row.get("status") != "ok" or (wanted is not None and seed not in wanted):',
+           'if row.get("status") == "?" or (wanted is not None and seed not in wanted):',
            (CONFIRM_T,)),
     Mutant("confirmatory-atari-any-steps", "an Atari run counts as in at any steps, a shorter "
            "run taken for a finished one", CONFIRMATORY,

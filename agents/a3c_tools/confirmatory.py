@@ -9,12 +9,12 @@ these numbers and that its run seeds are new.
 A claim's `spread_from` names the committed runs whose paired differences give the spread:
 `baseline` and `line` (Catch results folders, runs 0..runs-1 paired by run_id), or `lines` for a
 composite claim (the mean over those lines, run by run, against the baseline), or `atari` (a
-figure's results.csv, `game`, `baseline` and `line`, paired by seed). The runs per line are the
-fewest for which the two-sided paired t test at the level alpha / (the number of primary
-claims), Holm's first and strictest step, has at least the plan's power at the claim's
-`effect` (a3c_tools.paired.runs_for_power; for "comparable", the distance of `effect` from the
-band's edge), capped at the plan's `max_runs` (the power at the cap is then stated). A run seed
-is new when no committed results.csv under results/ has it in its `seed` column.
+figure's folder, `game`, `baseline` and `line`: each line's results.csv, paired by seed). The
+runs per line are the fewest for which the two-sided paired t test at the level alpha / (the
+number of primary claims), Holm's first and strictest step, has at least the plan's power at
+the claim's `effect` (a3c_tools.paired.runs_for_power; for "comparable", the distance of
+`effect` from the band's edge), capped at the plan's `max_runs` (the power at the cap is then
+stated). A run seed is new when no committed results.csv under results/ has it in its `seed` column.
 
 The analysis is fixed here too (`outcomes`): one look, once every claim's `test` runs are in,
 the same paired t test as the claims page's, Holm over the family, a verdict where the adjusted
@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from a3c_tools import ROOT, results_folder, run_main
+from a3c_tools import atari_figures as af
 from a3c_tools.paired import (
     MARGIN,
     MAX_POWER_RUNS,
@@ -93,13 +94,26 @@ def atari_lines(spec: dict) -> tuple[str, str]:
     return spec["baseline"], spec["line"]
 
 
+def atari_line_folder(spec: dict, line: str) -> Path:
+    """An Atari claim's line's folder, FIGURE/GAME/LINE, or that of the figure whose runs it is
+    (atari_figures' same_as: Figure 7.8's A3C FF is Figure 6.9's)."""
+    folder = Path(spec["atari"])
+    figure = next((each for each in af.data().figures if each.id == folder.name), None)
+    shared = next((each for each in figure.lines if each.slug == line), None) if figure else None
+    if shared is not None:
+        folder = af.line_folder(folder.parent, figure, spec["game"], shared)
+    else:
+        folder = folder / spec["game"] / line
+    return ROOT / results_folder(str(folder), ROOT)
+
+
 def atari_seeds(spec: dict, runs: int, line: str) -> tuple[set[int], set[int]]:
     """The seeds of an Atari claim's runs (seed + 1000 i, i < runs) in one line's results.csv,
     read from its seed, status and final_step columns alone (no score): (ok and at the claim's
     steps, failed). An ok run short of the steps is not in (a run of another budget)."""
     wanted = {int(spec["seed"]) + STRIDE * i for i in range(runs)}
     ok, failed = set(), set()
-    for row in read_rows(ROOT / results_folder(f"{spec['atari']}/{spec['game']}/{line}", ROOT)):
+    for row in read_rows(atari_line_folder(spec, line)):
         seed = int(row["seed"])
         if seed not in wanted:
             continue
@@ -114,7 +128,7 @@ def runs_in(spec: dict, runs: int) -> dict[tuple[str, ...], int]:
     """How many of the runs a claim's test needs are in, line by line (the line's folder, or its
     figure, game and name), counted from the run ids, seeds, statuses and steps alone: no score
     is read, so the count can be shown while the study runs without looking at its data."""
-    if "atari" in spec:  # each line's own folder (the figure's table is drawn after a sweep)
+    if "atari" in spec:  # each line's own folder
         return {
             (spec["atari"], spec["game"], line): len(set.union(*atari_seeds(spec, runs, line)))
             for line in atari_lines(spec)
@@ -170,31 +184,29 @@ def outcomes(plan: dict) -> list[Outcome] | None:
     return result
 
 
-def atari_differences(spec: dict) -> np.ndarray:
-    """The paired differences of two lines of an Atari figure on one game, by seed (with `seed`,
-    `runs` and `steps` in the spec: only seeds seed + 1000 i, i < runs, that reached the steps)."""
-    finals: dict[str, dict[int, float]] = {}
-    table = ROOT / results_folder(spec["atari"], ROOT) / "results.csv"
-    if not table.is_file():
-        return np.array([])
+def atari_scores(spec: dict, line: str) -> dict[int, float]:
+    """seed -> score of one line's runs of an Atari claim, from the line's own results.csv: the
+    sweep's score, the mean of a run's evaluations after step 0 (at 1M and 2M steps), as every
+    Catch claim scores a run (PLAN.md, amendment 5). Only ok runs; with `steps` in the spec only
+    those that reached them, with `seed` (and `runs`) only the study's, seed + 1000 i."""
     wanted = None
     if "seed" in spec:
         wanted = {int(spec["seed"]) + STRIDE * i for i in range(int(spec["runs"]))}
-    with open(table, newline="") as f:
-        for row in csv.DictReader(f):
-            if row["game"] != spec["game"] or (
-                wanted is not None and int(row["seed"]) not in wanted
-            ):
-                continue
-            if int(row.get("final_step") or 0) < int(spec.get("steps", 0)):
-                continue
-            finals.setdefault(row["line"], {})[int(row["seed"])] = float(row["final_score"])
-    base, line = finals.get(spec["baseline"], {}), finals.get(spec["line"], {})
-    seeds = set(base) & set(line)
-    if wanted is not None:  # the study's: a run its line's table records as failed is left out
-        ok = [atari_seeds(spec, int(spec["runs"]), name)[0] for name in atari_lines(spec)]
-        seeds &= set.intersection(*ok)
-    return np.array([line[s] - base[s] for s in sorted(seeds)])
+    scores = {}
+    for row in read_rows(atari_line_folder(spec, line)):
+        seed = int(row["seed"])
+        if row.get("status") != "ok" or (wanted is not None and seed not in wanted):
+            continue
+        if int(row.get("final_step") or 0) >= int(spec.get("steps", 0)):
+            scores[seed] = float(row["score"])
+    return scores
+
+
+def atari_differences(spec: dict) -> np.ndarray:
+    """The paired differences of two lines of an Atari figure on one game, by seed: the line's
+    score minus the baseline's, over the seeds that both have (atari_scores)."""
+    base, line = (atari_scores(spec, name) for name in atari_lines(spec))
+    return np.array([line[s] - base[s] for s in sorted(set(base) & set(line))])
 
 
 def differences(spec: dict) -> np.ndarray:

@@ -23,6 +23,19 @@ if [ $# -ge 1 ]; then
             cp "$from/$log" "$log"
         fi
     done
+    # the confirmatory study's Atari figures drawn again there, so that each line's kept
+    # evaluations.csv holds the curve of every run whose folder is there now (a run folder is
+    # not committed and goes with its machine), not only of runs whose sweep has ended
+    for figure in "$from"/results/confirmatory/atari/fig*/; do
+        [ -d "$figure" ] || continue
+        python -m a3c_tools.atari_figures "$(basename "$figure")" \
+            --out "$from/results/confirmatory/atari" --plot-only > /dev/null
+        for kept in "$figure"*/*/evaluations.csv "$figure"results.csv "$figure"curves.csv \
+            "$figure$(basename "$figure").png"; do
+            here=${kept#"$from"/}
+            if [ -f "$kept" ]; then mkdir -p "$(dirname "$here")" && cp "$kept" "$here"; fi
+        done
+    done
     while IFS= read -r table; do
         line=$(dirname "${table#"$from"/}")
         here=0
