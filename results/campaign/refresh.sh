@@ -9,9 +9,10 @@
 # that edits here never reach a run in flight): first each plan's SWEEPS.tsv where FROM's is
 # ahead, and every line whose
 # results.csv there holds more rows than here (the campaign only adds rows), with its
-# sweep.json, its kept evaluations.csv (an Atari line's) and its runs' evaluations.csv files (in
-# runs/, not committed, but read by the summary to gather curves.csv), are copied from it, so
-# that no curve is lost with its folder; so are an Atari figure's curves.csv and drawing.
+# sweep.json and its runs' evaluations.csv files (in runs/, not committed, but read by the
+# summary to gather curves.csv), are copied from it, so that no curve is lost with its folder;
+# the confirmatory study's Atari figures are drawn there first and copied whole (each line's
+# kept evaluations.csv, the figure's tables and drawing).
 set -euo pipefail
 if [ $# -ge 1 ]; then
     from=$(cd "$1" && pwd)
@@ -43,11 +44,7 @@ if [ $# -ge 1 ]; then
         [ "$(wc -l < "$table")" -gt "$here" ] || continue
         mkdir -p "$line"
         cp "$table" "$line/results.csv"
-        # a line's sweep.json and kept evaluations (atari_figures: its curves once the run
-        # folders are gone); an Atari figure's folder its curves and its drawing
-        for kept in sweep.json evaluations.csv curves.csv "$(basename "$line").png"; do
-            if [ -f "$from/$line/$kept" ]; then cp "$from/$line/$kept" "$line/$kept"; fi
-        done
+        [ -f "$from/$line/sweep.json" ] && cp "$from/$line/sweep.json" "$line/sweep.json"
         for csv in "$from/$line"/runs/*/evaluations.csv; do
             [ -f "$csv" ] || continue
             run=$(basename "$(dirname "$csv")")
