@@ -375,6 +375,10 @@ MUTANTS = [
            "default seeds, not the seed its sweep ran from (a campaign item's own)",
            ATARI_FIGURES, "first = line_seed(folder)", "first = SEED",
            ("tests/test_atari_figures.py",)),
+    Mutant("sweep-run-autogroup-unniced", "a run, a session of its own, takes the CPU at "
+           "autogroup nice 0 whatever the sweep's group was niced to", SWEEP,
+           "AUTOGROUP.write_text(str(autogroup))", "AUTOGROUP.write_text(str(0 * autogroup))",
+           (SWEEP_T,)),
     Mutant("sweep-seeds-adjacent", "a sweep's run seeds are 1 apart, not 1000 (worker seeds of "
            "neighbouring runs collide)", SWEEP, "SEED_STRIDE = 1000  # run i", "SEED_STRIDE = 1  "
            "# run i", (SWEEP_T,)),

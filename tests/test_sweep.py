@@ -687,6 +687,43 @@ def test_execute_run_stops_its_run_with_sigint(fake_agent, tmp_path, how):
     assert sweep.result_row(sweep.plan_runs(CONFIG, 1)[0], result) is None
 
 
+AUTOGROUPS = Path("/proc/sys/kernel/sched_autogroup_enabled")
+
+
+@pytest.mark.skipif(
+    not (AUTOGROUPS.is_file() and AUTOGROUPS.read_text().strip() == "1"),
+    reason="the kernel does not group sessions (Linux sched_autogroup)",
+)
+def test_a_run_keeps_the_sweeps_autogroup_nice(tmp_path):
+    """A run is a session of its own, so an autogroup of its own, which the kernel ranks by the
+    group's nice alone: a campaign niced by its group would start each run at nice 0 and take
+    half the CPU. The sweep is started in a session of its own here (the process boundary is
+    what is tested), its group niced to 7; its run must come out in another group, niced 7."""
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import os, sys\n"
+        "open(sys.argv[1], 'w').write(open('/proc/self/autogroup').read()"
+        " + open(f'/proc/{os.getppid()}/autogroup').read())\n"
+    )
+    seen = tmp_path / "seen.txt"
+    sweeper = (
+        "import sys; from pathlib import Path; from a3c_tools import sweep\n"
+        "Path('/proc/self/autogroup').write_text('7')\n"
+        "result = sweep.execute_run(sys.argv[1:3], sys.argv[3])\n"
+        "sys.exit(result['returncode'])\n"
+    )
+    subprocess.run(
+        [sys.executable, "-c", sweeper, str(probe), str(seen), str(tmp_path / "run")],
+        cwd=ROOT / "agents",
+        start_new_session=True,
+        check=True,
+        timeout=60,
+    )
+    run_group, sweep_group = seen.read_text().splitlines()
+    assert sweep_group.endswith("nice 7"), sweep_group
+    assert run_group != sweep_group and run_group.endswith("nice 7"), (run_group, sweep_group)
+
+
 # ------------------------------------------------------------------------------------------------
 # The plot
 # ------------------------------------------------------------------------------------------------

@@ -122,6 +122,7 @@ import csv
 import ctypes
 import dataclasses
 import difflib
+import functools
 import importlib.util
 import io
 import json
@@ -517,7 +518,7 @@ def execute_run(
             stderr=err,
             stdin=subprocess.DEVNULL,
             start_new_session=True,  # a terminal's Ctrl-C reaches the sweep only; it forwards it
-            preexec_fn=_prepare_child,
+            preexec_fn=functools.partial(_prepare_child, autogroup_nice()),
         )
         deadline = None
         try:
@@ -608,15 +609,33 @@ def _signal_group(process: subprocess.Popen, signum: int) -> None:
         os.killpg(process.pid, signum)
 
 
-def _prepare_child() -> None:
-    """In the child, before exec: unblock every signal (a Ray worker runs tasks with SIGINT
-    blocked, and exec keeps the mask, so the run would never see the sweep's SIGINT), and on
-    Linux ask for SIGTERM when the thread that started it dies (PR_SET_PDEATHSIG), so that a
-    killed sweep leaves no runs behind."""
+AUTOGROUP = Path("/proc/self/autogroup")
+
+
+def autogroup_nice() -> int | None:
+    """The nice of this process's autogroup (Linux with sched_autogroup), else None. A session
+    of its own is an autogroup of its own, which the kernel ranks by that nice and not by its
+    processes' own nice: a run started in a new session would otherwise take its share of the
+    CPU at nice 0, however the sweep was niced."""
+    try:
+        return int(AUTOGROUP.read_text().split("nice")[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _prepare_child(autogroup: int | None = None) -> None:
+    """In the child, before exec (after setsid): unblock every signal (a Ray worker runs tasks
+    with SIGINT blocked, and exec keeps the mask, so the run would never see the sweep's
+    SIGINT); on Linux ask for SIGTERM when the thread that started it dies (PR_SET_PDEATHSIG),
+    so that a killed sweep leaves no runs behind; and give the run's new autogroup the sweep's
+    autogroup nice, so that a niced campaign stays niced."""
     signal.pthread_sigmask(signal.SIG_SETMASK, set())
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
             ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1: PR_SET_PDEATHSIG
+    if autogroup is not None:
+        with contextlib.suppress(OSError):
+            AUTOGROUP.write_text(str(autogroup))
 
 
 def result_row(run: Run, result: dict) -> dict | None:
