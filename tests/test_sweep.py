@@ -708,17 +708,20 @@ def test_a_run_keeps_the_sweeps_autogroup_nice(tmp_path):
     seen = tmp_path / "seen.txt"
     sweeper = (
         "import sys; from pathlib import Path; from a3c_tools import sweep\n"
-        "Path('/proc/self/autogroup').write_text('7')\n"
+        "try: Path('/proc/self/autogroup').write_text('7')\n"
+        "except OSError: sys.exit(77)\n"
         "result = sweep.execute_run(sys.argv[1:3], sys.argv[3])\n"
         "sys.exit(result['returncode'])\n"
     )
-    subprocess.run(
+    done = subprocess.run(
         [sys.executable, "-c", sweeper, str(probe), str(seen), str(tmp_path / "run")],
         cwd=ROOT / "agents",
         start_new_session=True,
-        check=True,
         timeout=60,
     )
+    if done.returncode == 77:
+        pytest.skip("this process may not set its autogroup's nice")
+    assert done.returncode == 0
     run_group, sweep_group = seen.read_text().splitlines()
     assert sweep_group.endswith("nice 7"), sweep_group
     assert run_group != sweep_group and run_group.endswith("nice 7"), (run_group, sweep_group)
