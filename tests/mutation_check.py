@@ -379,6 +379,9 @@ MUTANTS = [
            "autogroup nice 0 whatever the sweep's group was niced to", SWEEP,
            "AUTOGROUP.write_text(str(autogroup))", "AUTOGROUP.write_text(str(0 * autogroup))",
            (SWEEP_T,)),
+    Mutant("atari-figure-curve-waits-for-every-run", "an Atari figure's curve stops where its "
+           "least advanced run is (a run under way ends the line at step 0)", ATARI_FIGURES,
+           "if len(rows) == full}", "if len(rows) <= full}", ("tests/test_atari_figures.py",)),
     Mutant("sweep-seeds-adjacent", "a sweep's run seeds are 1 apart, not 1000 (worker seeds of "
            "neighbouring runs collide)", SWEEP, "SEED_STRIDE = 1000  # run i", "SEED_STRIDE = 1  "
            "# run i", (SWEEP_T,)),

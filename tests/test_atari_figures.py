@@ -290,7 +290,8 @@ def test_runs_resume_skip_the_finished_and_refuse_another_configuration(fake, tm
 
 def test_curves_are_the_mean_and_standard_error_over_seeds(fake, tmp_path):
     out = tmp_path / "out"
-    returns = {0: [0.0, 2.0, 4.0], 1: [0.0, 4.0, 8.0], 2: [0.0, 6.0]}  # run 2 stopped early
+    # run 3 under way (or cut short): the curve is the three runs that reached the last step
+    returns = {0: [0.0, 2.0, 4.0], 1: [0.0, 4.0, 8.0], 2: [0.0, 6.0, 12.0], 3: [0.0]}
     for index, values in returns.items():
         run = out / "fig6.10" / "Pong" / "vf0.5" / "runs" / f"run-{index:04d}"
         run.mkdir(parents=True)
@@ -305,12 +306,15 @@ def test_curves_are_the_mean_and_standard_error_over_seeds(fake, tmp_path):
     assert [(r["line"], r["step"], r["seeds"]) for r in curves] == [
         ("vf0.5", "0", "3"),
         ("vf0.5", "1000000", "3"),
-    ]  # every seed has reached them
+        ("vf0.5", "2000000", "3"),
+    ]
     assert float(curves[1]["mean"]) == pytest.approx(4.0)
     assert float(curves[1]["se"]) == pytest.approx(2.0 / math.sqrt(3))  # std 2 over 3 seeds
+    assert float(curves[2]["mean"]) == pytest.approx(8.0)
     with (out / "fig6.10" / "results.csv").open() as f:
         results = [(r["seed"], r["final_score"], r["final_step"]) for r in csv.DictReader(f)]
-    assert results == [("1", "4", "2000000"), ("1001", "8", "2000000"), ("2001", "6", "1000000")]
+    assert results == [("1", "4", "2000000"), ("1001", "8", "2000000"), ("2001", "12", "2000000"),
+                       ("3001", "0", "0")]  # fmt: skip
 
 
 def test_a_line_whose_run_folders_are_gone_is_drawn_from_its_kept_evaluations(fake, tmp_path):
@@ -344,9 +348,10 @@ def test_a_line_whose_run_folders_are_gone_is_drawn_from_its_kept_evaluations(fa
     with (out / "fig6.10" / "results.csv").open() as f:
         results = [(r["seed"], r["final_score"], r["final_step"]) for r in csv.DictReader(f)]
     assert results == [("1", "2", "1000000"), ("1001", "-1", "0")]
-    with (out / "fig6.10" / "curves.csv").open() as f:
+    with (out / "fig6.10" / "curves.csv").open() as f:  # seed 1001 under way: seed 1's curve
         assert [(r["step"], r["seeds"], r["mean"]) for r in csv.DictReader(f)] == [
-            ("0", "2", "-0.5")
+            ("0", "1", "0"),
+            ("1000000", "1", "2"),
         ]
 
 

@@ -37,9 +37,11 @@ the evaluator's share of a 2-core machine near 5%; the thesis: 50).
 
 Drawing. OUT/FIG/FIG.png has one panel per game: each line is the mean over seeds of the
 evaluation score against steps, the band the mean +- one standard error over seeds (the thesis's
-shaded areas are standard errors), drawn at the steps every seed has reached; the thesis's
-values read off its figure (where the data file has them) are markers at the right edge,
-labelled "thesis, N M steps", and its statement is written under the panels. OUT/FIG/curves.csv
+shaded areas are standard errors), over the seeds with the most evaluations (a run under way
+or cut short is left out of the curve, its label says how many) and at the steps each of them
+has reached; the thesis's values read off its figure (where the data file has them) are
+markers at the right edge, labelled "thesis, N M steps", and its statement is written under the
+panels. OUT/FIG/curves.csv
 holds the plotted values (figure, game, line, step, seeds, mean, se), OUT/FIG/results.csv a row
 per run (figure, game, line, seed, final_score, final_step). A figure is drawn after its runs,
 or from whatever runs exist with --plot-only. Each drawing also writes the line's every
@@ -340,6 +342,13 @@ def runs_of(
     return runs
 
 
+def furthest(runs: dict[int, list[tuple[int, float]]]) -> dict[int, list[tuple[int, float]]]:
+    """The runs of a line with the most evaluations: the curve is theirs, since a run under way
+    (or cut short) would otherwise end every seed's curve at the step it has reached."""
+    full = max((len(rows) for rows in runs.values()), default=0)
+    return {seed: rows for seed, rows in runs.items() if len(rows) == full}
+
+
 def curve(runs: dict[int, list[tuple[int, float]]]) -> list[tuple[int, int, float, float]]:
     """(step, seeds, mean, standard error) at each step every run has reached."""
     by_step: dict[int, list[float]] = {}
@@ -388,7 +397,8 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
             for seed, rows in sorted(runs.items()):
                 step, value = rows[-1]
                 results.append([figure.id, game, line.slug, seed, value, step])
-            points = curve(runs)
+            drawn = furthest(runs)
+            points = curve(drawn)
             curves += [[figure.id, game, line.slug, *point] for point in points]
             if not points:
                 continue
@@ -396,7 +406,10 @@ def draw(figure: Figure, options: argparse.Namespace) -> Path | None:
             means, ses = [p[2] for p in points], [p[3] for p in points]
             top = max(top, steps[-1])
             colour = f"C{i}"
-            label = f"{line.label} ({plural(len(runs), 'seed')})"
+            behind = len(runs) - len(drawn)
+            label = f"{line.label} ({plural(len(drawn), 'seed')}" + (
+                f"; {behind} more under way or cut short)" if behind else ")"
+            )
             ax.plot(steps, means, color=colour, marker="o", label=label)
             low = [m - s for m, s in zip(means, ses, strict=True)]
             high = [m + s for m, s in zip(means, ses, strict=True)]
