@@ -12,7 +12,8 @@
 # sweep.json and its runs' evaluations.csv files (in runs/, not committed, but read by the
 # summary to gather curves.csv), are copied from it, so that no curve is lost with its folder;
 # the confirmatory study's Atari figures are drawn there first and copied whole (each line's
-# kept evaluations.csv, the figure's tables and drawing).
+# kept evaluations.csv, the figure's tables and drawing); its PROGRESS.md is written there, by
+# FROM's own tool (which reads its own checkout), so that it counts the begun runs' steps.
 set -euo pipefail
 if [ $# -ge 1 ]; then
     from=$(cd "$1" && pwd)
@@ -55,5 +56,11 @@ fi
 python -m a3c_tools.thesis_claims -o docs/claims.md
 python -m a3c_tools.future_work_summary > results/future_work_catch/summary.txt
 python -m a3c_tools.campaign results/campaign/plan.toml --status
-python -m a3c_tools.campaign results/confirmatory/plan.toml --status > /dev/null
+if [ $# -ge 1 ]; then  # by FROM's tool, where the begun runs' checkpoints are: counted too
+    (cd "$from" && PYTHONPATH="$from/agents:$from" \
+        python -m a3c_tools.campaign results/confirmatory/plan.toml --status > /dev/null)
+    cp "$from/results/confirmatory/PROGRESS.md" results/confirmatory/PROGRESS.md
+else
+    python -m a3c_tools.campaign results/confirmatory/plan.toml --status > /dev/null
+fi
 python -m a3c_tools.confirmatory results/confirmatory/plan.toml --check
