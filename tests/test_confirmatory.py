@@ -196,6 +196,13 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     write_line(tmp_path / "results" / "same", base[:3])  # 6 + 3 of the 12 runs in, and no look
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **under way: 9 of 12 runs in** |")
     assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 12 runs in")
+    path.write_text(path.read_text() + '[[claim]]\nid = "B"\nclaim = "c"\nexperiment = "e"\n'
+                    'expect = "better"\neffect = 0.1\neffect_basis = "b"\nruns = 3\n'
+                    'power = 0.9\nlevel = 0.05\n'
+                    'test = { baseline = "results/ff", line = "results/same" }\n')  # fmt: skip
+    assert thesis_claims.confirmatory(path)[3].endswith(
+        "| - | **all 6 runs in; waits for the one look** |"  # B's runs in, A's not: no look
+    )
     for folder in ("ff", "same"):
         (tmp_path / "results" / folder / "results.csv").unlink()
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **planned, not yet run** |")

@@ -625,7 +625,8 @@ def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_row
         assert (
             f"| {claim['id']} | " in confirm and f"{claim['runs']} ({claim['power']:.0%}" in confirm
         )
-    status = re.findall(r"\*\*(planned, not yet run|under way: \d+ of \d+ runs in)\*\* \|$",
+    status = re.findall(r"\*\*(planned, not yet run|under way: \d+ of \d+ runs in|"
+                        r"all \d+ runs in; waits for the one look)\*\* \|$",
                         confirm, re.M)  # fmt: skip
     assert len(status) == len(plan["claim"])  # no result before the one look
     # the claims left out before any run: listed with what 80% power would need, not in the table
