@@ -585,10 +585,11 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
     for i, claim in enumerate(plan.get("claim", [])):
         result, verdict = "-", "**planned, not yet run**"
         done, needed = sum(progress[i].values()), claim["runs"] * len(progress[i])
-        if done:  # counted from run ids, no score read: the one look waits for all of them
-            verdict = f"**under way: {done} of {needed} runs in**"
-        if done >= needed:  # this claim's runs are all in; other claims' runs are not yet
+        # counted from run ids, no score read: the one look waits for every claim's runs
+        if done and done >= needed:
             verdict = f"**all {needed} runs in; waits for the one look**"
+        elif done:
+            verdict = f"**under way: {done} of {needed} runs in**"
         if found is not None:
             o = found[i]
             f = ".3f" if "atari" not in claim["test"] else ".1f"
