@@ -454,3 +454,27 @@ def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
     assert len(steps) == len(marks) + 1 and steps == sorted(steps), steps
     assert all(mark <= step < mark + 500 for mark, step in zip(marks, steps, strict=False))
     assert steps[-1] >= 12000
+
+
+def test_a_run_stopped_while_its_evaluator_is_behind_exits_keeping_what_it_waits_for(tmp_path):
+    """SIGTERM while the evaluator is held still (SIGSTOP) with the copies of theta taken at
+    the marks waiting for it: the run ends (the requests it never read do not hold the main
+    process at its exit) and its checkpoint keeps them, to be taken when it is resumed."""
+    flags = ["--num-workers", "2", "--envs-per-worker", "4", "--total-timesteps", "10000000",
+             "--eval-interval", "500", "--eval-episodes", "2", "--log-interval", "1",
+             "--run-dir", str(tmp_path)]  # fmt: skip
+    process, pids = start(*flags)
+    wait_for_progress(process)
+    os.kill(pids["evaluator"], signal.SIGSTOP)
+    for line in process.stdout:
+        if line.startswith("note: the evaluator is"):
+            break
+    process.send_signal(signal.SIGTERM)
+    stdout, stderr = process.communicate(timeout=60)
+    assert process.returncode == 0, stderr
+    assert "stopped by SIGTERM" in stdout and "survives; resume:" in stdout, stdout
+    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    logged = {int(row["global_step"]) for row in read_evaluations(tmp_path)}
+    waiting = [step for step, _ in checkpoint["pending_evaluations"]]
+    assert waiting and not logged & set(waiting), (waiting, logged)
+    assert_all_gone(pids)

@@ -116,6 +116,9 @@ def train(
     finally:
         supervisor.restore_signal_handlers()
         folder.close()
+        # the evaluator has ended: requests it never read (a run stopped while it was behind)
+        # must not hold this process at its exit, its queue's thread waiting for a reader
+        requests.cancel_join_thread()
     return summarize(outcome, sps, shared, log, run_dir)
 
 
