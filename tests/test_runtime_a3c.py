@@ -429,14 +429,14 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
         assert {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()} == files
 
 
-def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
-    """The evaluator held still (SIGSTOP) while the workers train: the copies of theta taken at
-    the marks wait for it, the console says it is behind, and every evaluation is taken, in
-    order, at its step."""
-    run_dir = tmp_path / "run"
-    flags = ["--num-workers", "2", "--envs-per-worker", "4", "--total-timesteps", "12000",
-             "--eval-interval", "500", "--eval-episodes", "2", "--log-interval", "1",
-             "--run-dir", str(run_dir)]  # fmt: skip
+def start_with_the_evaluator_behind(
+    run_dir: Path, total_timesteps: int
+) -> tuple[subprocess.Popen, dict[str, int], list[str]]:
+    """A run (an evaluation every 500 steps) whose evaluator is held still (SIGSTOP) once the
+    workers learn, until the console says it is behind; the run, its pids and the lines seen."""
+    flags = ["--num-workers", "2", "--envs-per-worker", "4", "--total-timesteps",
+             str(total_timesteps), "--eval-interval", "500", "--eval-episodes", "2",
+             "--log-interval", "1", "--run-dir", str(run_dir)]  # fmt: skip
     process, pids = start(*flags)
     wait_for_progress(process)
     os.kill(pids["evaluator"], signal.SIGSTOP)
@@ -445,6 +445,15 @@ def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
         seen.append(line)
         if re.match(r"note: the evaluator is \d+ evaluations behind the training", line):
             break
+    return process, pids, seen
+
+
+def test_a_stalled_evaluator_skips_nothing_and_is_announced(tmp_path):
+    """The evaluator held still (SIGSTOP) while the workers train: the copies of theta taken at
+    the marks wait for it, the console says it is behind, and every evaluation is taken, in
+    order, at its step."""
+    run_dir = tmp_path / "run"
+    process, pids, seen = start_with_the_evaluator_behind(run_dir, 12000)
     os.kill(pids["evaluator"], signal.SIGCONT)
     stdout, stderr = process.communicate(timeout=120)
     assert process.returncode == 0, stderr
@@ -460,15 +469,7 @@ def test_a_run_stopped_while_its_evaluator_is_behind_exits_keeping_what_it_waits
     """SIGTERM while the evaluator is held still (SIGSTOP) with the copies of theta taken at
     the marks waiting for it: the run ends (the requests it never read do not hold the main
     process at its exit) and its checkpoint keeps them, to be taken when it is resumed."""
-    flags = ["--num-workers", "2", "--envs-per-worker", "4", "--total-timesteps", "10000000",
-             "--eval-interval", "500", "--eval-episodes", "2", "--log-interval", "1",
-             "--run-dir", str(tmp_path)]  # fmt: skip
-    process, pids = start(*flags)
-    wait_for_progress(process)
-    os.kill(pids["evaluator"], signal.SIGSTOP)
-    for line in process.stdout:
-        if line.startswith("note: the evaluator is"):
-            break
+    process, pids, _ = start_with_the_evaluator_behind(tmp_path, 10_000_000)
     process.send_signal(signal.SIGTERM)
     stdout, stderr = process.communicate(timeout=60)
     assert process.returncode == 0, stderr
