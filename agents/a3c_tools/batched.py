@@ -170,12 +170,36 @@ def lstm_cell(cell: torch.nn.LSTMCell, x: torch.Tensor, state: tuple) -> tuple:
     return torch.sigmoid(o) * torch.tanh(c), c
 
 
-def vmappable(network: torch.nn.Module) -> torch.nn.Module:
-    """The network with each nn.LSTMCell stepping through `lstm_cell` (its parameters, by the
-    same names, are still the ones functional_call substitutes)."""
+def conv_as_matmul(conv: torch.nn.Conv2d, x: torch.Tensor) -> torch.Tensor:
+    """nn.Conv2d's output as im2col and one matrix product (W (O, C k k) @ cols (B, C k k, L)).
+    Under vmap over stacked weights torch turns a convolution into one grouped convolution of N
+    groups, which cuDNN runs as a kernel per group; this is one batched matmul instead. The same
+    values to float rounding (a sum's order)."""
+    cols = F.unfold(x, conv.kernel_size, conv.dilation, conv.padding, conv.stride)
+    out = conv.weight.flatten(1) @ cols
+    if conv.bias is not None:
+        out = out + conv.bias[:, None]
+    size = [(x.shape[d] + 2 * conv.padding[i] - conv.dilation[i] * (conv.kernel_size[i] - 1) - 1)
+            // conv.stride[i] + 1 for i, d in ((0, -2), (1, -1))]  # fmt: skip
+    return out.view(*out.shape[:-1], *size)
+
+
+# how the batch computes its networks' convolutions, by device: as torch's vmap gives them
+# (a grouped convolution) or as `conv_as_matmul` (benchmarks/batched_throughput.py --conv)
+CONVOLUTIONS = {"cpu": "grouped", "cuda": "grouped"}
+
+
+def vmappable(network: torch.nn.Module, convolutions: str = "grouped") -> torch.nn.Module:
+    """The network with each nn.LSTMCell stepping through `lstm_cell`, and with
+    convolutions="matmul" each plain nn.Conv2d through `conv_as_matmul` (their parameters, by
+    the same names, are still the ones functional_call substitutes)."""
     for module in network.modules():
         if isinstance(module, torch.nn.LSTMCell):
             module.forward = functools.partial(lstm_cell, module)
+        elif convolutions == "matmul" and isinstance(module, torch.nn.Conv2d):
+            if module.groups != 1 or isinstance(module.padding, str):
+                raise ValueError(f"conv_as_matmul computes no {module}")
+            module.forward = functools.partial(conv_as_matmul, module)
     return network
 
 
@@ -282,7 +306,13 @@ class RunFiles:
 class BatchedA3C:
     """N one-worker runs of a script of BATCHED_SCRIPTS in lockstep (the module docstring)."""
 
-    def __init__(self, module: ModuleType, runs: list[BatchedRun], device: str | torch.device):
+    def __init__(
+        self,
+        module: ModuleType,
+        runs: list[BatchedRun],
+        device: str | torch.device,
+        convolutions: str | None = None,
+    ):
         self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
         self.runs = runs
         self.args = [run.args for run in runs]
@@ -296,7 +326,8 @@ class BatchedA3C:
             seeds.append(process_seed(args.seed, 0))  # the worker's seed
             self.rngs.append(np.random.default_rng(seeds[-1]))
         self.cpu_model = models[0]  # the evaluations' and checkpoints' network
-        self.base = vmappable(copy.deepcopy(models[0]).to(self.device))
+        self.convolutions = convolutions or CONVOLUTIONS[self.device.type]
+        self.base = vmappable(copy.deepcopy(models[0]).to(self.device), self.convolutions)
         params, buffers = stack_module_state(models)
         self.names = list(params)
         self.params = [params[k].detach().to(self.device) for k in self.names]
@@ -501,6 +532,16 @@ class BatchedA3C:
                         files.wall_offset + wall_time, self.agent.script, snapshot)  # fmt: skip
 
 
+def set_up_device(device: str) -> None:
+    """torch's settings for a batch on this device (the benchmarks' too, so that they time what
+    the backend computes)."""
+    if device == "cuda":  # fp32 as the scripts compute it: no TF32 convolutions or matmuls
+        torch.backends.cudnn.allow_tf32 = False
+        torch.backends.cuda.matmul.allow_tf32 = False
+    else:  # one core, as one process-backend run uses (and no oversubscribed threads)
+        torch.set_num_threads(1)
+
+
 def train_batched(
     module: ModuleType,
     runs: list[BatchedRun],
@@ -511,11 +552,7 @@ def train_batched(
     """Train the runs as one batch to their --total-timesteps, writing each run's folder;
     returns each run's outcome (for the sweep's table): "done" or "stopped" and its wall time.
     A stop (should_stop() true) checkpoints every run at its last update."""
-    if device == "cuda":  # fp32 as the scripts compute it: no TF32 convolutions or matmuls
-        torch.backends.cudnn.allow_tf32 = False
-        torch.backends.cuda.matmul.allow_tf32 = False
-    else:  # one core, as one process-backend run uses (and no oversubscribed threads)
-        torch.set_num_threads(1)
+    set_up_device(device)
     batch = BatchedA3C(module, runs, device)
     start, start_step = time.time(), batch.step_count
     files = [RunFiles(run.args, start_step, batch.wall_offsets[i]) for i, run in enumerate(runs)]

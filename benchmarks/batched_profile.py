@@ -1,0 +1,107 @@
+"""Where a batched update's time goes (the sweep's --backend batched, a3c_tools.batched): for
+each N of --runs, a batch of N one-worker runs of a script at the given flags is built, warmed
+up for two updates, timed over --updates updates (run-steps/s and steps/s, the batch's lockstep
+rate), then profiled over 3 updates with torch.profiler: the ops with the most host time and,
+on a GPU, the most device time, and the device's busy share of the profiled wall time.
+
+    python benchmarks/batched_profile.py [--device cpu|cuda] [--runs 50 1024] [--updates 20]
+        [--script agents/a3c_ff.py] [--conv grouped matmul] [--no-profile] [-- FLAG ...]
+
+What it is for: to see whether a batch is bound by the device's arithmetic or by the host
+(kernel launches, the per-step host syncs of the env and the returns), before optimising it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import torch
+from torch.profiler import ProfilerActivity, profile
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
+
+from a3c_tools import load_script  # noqa: E402
+from a3c_tools.batched import BatchedA3C, BatchedRun, planned_args, resolve_run_args  # noqa: E402
+
+
+def sync(device: str) -> None:
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    parser.add_argument("--runs", type=int, nargs="+", default=[50, 1024])
+    parser.add_argument("--updates", type=int, default=20)
+    parser.add_argument("--script", default="agents/a3c_ff.py")
+    parser.add_argument(
+        "--conv",
+        nargs="+",
+        choices=["grouped", "matmul"],
+        default=None,
+        help="the batch's convolutions (default: the device's)",
+    )
+    parser.add_argument("--no-profile", action="store_true", help="time the updates only")
+    parser.add_argument("flags", nargs="*", help="the script's flags (after --)")
+    args = parser.parse_args()
+    if args.device == "cuda":
+        torch.backends.cudnn.allow_tf32 = False
+        torch.backends.cuda.matmul.allow_tf32 = False
+    else:
+        torch.set_num_threads(1)
+    module = load_script(ROOT / args.script)
+    print(f"# {args.script} {' '.join(args.flags)} on {args.device}, torch {torch.__version__}")
+    for n, conv in [(n, conv) for n in args.runs for conv in args.conv or [None]]:
+        runs = []
+        for i in range(n):
+            lr = math.exp(math.log(1e-4) + (i + 0.5) / n * (math.log(1e-2) - math.log(1e-4)))
+            flags = [*args.flags, "--num-workers", "1", "--seed", str(1 + 1000 * i),
+                     "--learning-rate", str(lr), "--total-timesteps", str(10**9)]  # fmt: skip
+            runs.append(BatchedRun(resolve_run_args(planned_args(module, flags))))
+        built = time.time()
+        batch = BatchedA3C(module, runs, args.device, conv)
+        built = time.time() - built
+        for _ in range(2):
+            batch.update()
+        sync(args.device)
+        start, steps = time.time(), 0
+        for _ in range(args.updates):
+            steps += batch.update()
+        sync(args.device)
+        elapsed = time.time() - start
+        rate = f"{steps / elapsed:,.0f} steps/s (lockstep), {n * steps / elapsed:,.0f} run-steps/s"
+        per_update = (
+            f"{elapsed / args.updates * 1e3:.1f} ms an update of {steps / args.updates:.1f}"
+        )
+        print(f"N={n} ({batch.convolutions} convolutions): built in {built:.1f} s; {rate}, "
+              f"{per_update} steps")  # fmt: skip
+        if args.no_profile:
+            continue
+        activities = [ProfilerActivity.CPU]
+        if args.device == "cuda":
+            activities.append(ProfilerActivity.CUDA)
+        wall = time.time()
+        with profile(activities=activities) as prof:
+            for _ in range(3):
+                batch.update()
+            sync(args.device)
+        wall = time.time() - wall
+        averages = prof.key_averages()
+        print(averages.table(sort_by="self_cpu_time_total", row_limit=18, max_name_column_width=48))
+        if args.device == "cuda":
+            print(averages.table(sort_by="self_device_time_total", row_limit=12,
+                                 max_name_column_width=48))  # fmt: skip
+            busy = sum(e.self_device_time_total for e in averages) / 1e6
+            print(f"N={n}: device busy {busy:.3f} s of {wall:.3f} s profiled ({busy / wall:.0%})")
+        del batch
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
