@@ -2,10 +2,10 @@
 each N of --runs, a batch of N one-worker runs of a script at the given flags is built, warmed
 up for two updates, timed over --updates updates (run-steps/s and steps/s, the batch's lockstep
 rate), then profiled over 3 updates with torch.profiler: the ops with the most host time and,
-on a GPU, the most device time, and the device's busy share of the profiled wall time.
+on a GPU, the most device time, and the kernels' time an update.
 
     python benchmarks/batched_profile.py [--device cpu|cuda] [--runs 50 1024] [--updates 20]
-        [--script agents/a3c_ff.py] [--conv grouped matmul] [--no-profile] [-- FLAG ...]
+        [--script agents/a3c_ff.py] [--no-profile] [-- FLAG ...]
 
 What it is for: to see whether a batch is bound by the device's arithmetic or by the host
 (kernel launches, the per-step host syncs of the env and the returns), before optimising it.
@@ -20,13 +20,20 @@ import time
 from pathlib import Path
 
 import torch
+from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
 
 from a3c_tools import load_script  # noqa: E402
-from a3c_tools.batched import BatchedA3C, BatchedRun, planned_args, resolve_run_args  # noqa: E402
+from a3c_tools.batched import (  # noqa: E402
+    BatchedA3C,
+    BatchedRun,
+    planned_args,
+    resolve_run_args,
+    set_up_device,
+)
 
 
 def sync(device: str) -> None:
@@ -40,24 +47,13 @@ def main() -> int:
     parser.add_argument("--runs", type=int, nargs="+", default=[50, 1024])
     parser.add_argument("--updates", type=int, default=20)
     parser.add_argument("--script", default="agents/a3c_ff.py")
-    parser.add_argument(
-        "--conv",
-        nargs="+",
-        choices=["grouped", "matmul"],
-        default=None,
-        help="the batch's convolutions (default: the device's)",
-    )
     parser.add_argument("--no-profile", action="store_true", help="time the updates only")
     parser.add_argument("flags", nargs="*", help="the script's flags (after --)")
     args = parser.parse_args()
-    if args.device == "cuda":
-        torch.backends.cudnn.allow_tf32 = False
-        torch.backends.cuda.matmul.allow_tf32 = False
-    else:
-        torch.set_num_threads(1)
+    set_up_device(args.device)  # as the backend trains: one thread on a CPU, no TF32 on a GPU
     module = load_script(ROOT / args.script)
     print(f"# {args.script} {' '.join(args.flags)} on {args.device}, torch {torch.__version__}")
-    for n, conv in [(n, conv) for n in args.runs for conv in args.conv or [None]]:
+    for n in args.runs:
         runs = []
         for i in range(n):
             lr = math.exp(math.log(1e-4) + (i + 0.5) / n * (math.log(1e-2) - math.log(1e-4)))
@@ -65,7 +61,7 @@ def main() -> int:
                      "--learning-rate", str(lr), "--total-timesteps", str(10**9)]  # fmt: skip
             runs.append(BatchedRun(resolve_run_args(planned_args(module, flags))))
         built = time.time()
-        batch = BatchedA3C(module, runs, args.device, conv)
+        batch = BatchedA3C(module, runs, args.device)
         built = time.time() - built
         for _ in range(2):
             batch.update()
@@ -79,7 +75,7 @@ def main() -> int:
         per_update = (
             f"{elapsed / args.updates * 1e3:.1f} ms an update of {steps / args.updates:.1f}"
         )
-        print(f"N={n} ({batch.convolutions} convolutions): built in {built:.1f} s; {rate}, "
+        print(f"N={n}: built in {built:.1f} s; {rate}, "
               f"{per_update} steps")  # fmt: skip
         if args.no_profile:
             continue
@@ -97,8 +93,11 @@ def main() -> int:
         if args.device == "cuda":
             print(averages.table(sort_by="self_device_time_total", row_limit=12,
                                  max_name_column_width=48))  # fmt: skip
-            busy = sum(e.self_device_time_total for e in averages) / 1e6
-            print(f"N={n}: device busy {busy:.3f} s of {wall:.3f} s profiled ({busy / wall:.0%})")
+            # the kernels' own time (an op's row repeats its kernels' time as its own)
+            busy = sum(e.self_device_time_total for e in prof.events()
+                       if e.device_type == DeviceType.CUDA) / 1e6  # fmt: skip
+            print(f"N={n}: the kernels' time {busy * 1e3 / 3:.1f} ms an update (profiled: "
+                  f"{wall * 1e3 / 3:.1f} ms an update of wall time)")  # fmt: skip
         del batch
     return 0
 

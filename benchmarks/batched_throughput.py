@@ -41,7 +41,7 @@ sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
 
 from a3c_runtime import resolve_defaults  # noqa: E402
 from a3c_tools import load_script  # noqa: E402
-from a3c_tools.batched import CONVOLUTIONS, BatchedA3C, BatchedRun, set_up_device  # noqa: E402
+from a3c_tools.batched import BatchedA3C, BatchedRun, set_up_device  # noqa: E402
 
 THESIS_LINE = {"runs": 50, "steps": 1_000_000, "eval_interval": 50_000}
 
@@ -55,23 +55,21 @@ def sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def batch_of(module, n: int, device: str, t_max: int, convolutions: str) -> BatchedA3C:
+def batch_of(module, n: int, device: str, t_max: int) -> BatchedA3C:
     runs = []
     for i in range(n):
         lr = math.exp(math.log(1e-4) + (i + 0.5) / n * (math.log(1e-2) - math.log(1e-4)))
         args = module.Args(num_workers=1, seed=1 + 1000 * i, learning_rate=lr, t_max=t_max,
                            total_timesteps=10**9, precision="fp32")  # fmt: skip
         runs.append(BatchedRun(resolve_defaults(args)))
-    return BatchedA3C(module, runs, device, convolutions)
+    return BatchedA3C(module, runs, device)
 
 
-def measure_batch(
-    module, n: int, device: str, seconds: float, t_max: int, convolutions: str
-) -> dict:
+def measure_batch(module, n: int, device: str, seconds: float, t_max: int) -> dict:
     """run-steps/s of a batch of n runs over `seconds`, and one evaluation's seconds."""
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
-    batch = batch_of(module, n, device, t_max, convolutions)
+    batch = batch_of(module, n, device, t_max)
     for _ in range(2):  # warm-up: the first vmap traces, cuDNN picks its algorithms
         batch.update()
     sync(device)
@@ -152,16 +150,6 @@ def main() -> int:
     parser.add_argument("--process-runs", type=int, default=None)
     parser.add_argument("--process-seconds", type=float, default=40.0)
     parser.add_argument("--t-max", type=int, default=20)
-    parser.add_argument("--conv", nargs="+", choices=["grouped", "matmul"], default=None,
-                        help="the batch's convolutions, each measured at each N (default: the "
-                        "device's, a3c_tools.batched.CONVOLUTIONS)")  # fmt: skip
-    parser.add_argument(
-        "--cudnn-benchmark",
-        nargs="+",
-        choices=["off", "on"],
-        default=["off"],
-        help="torch.backends.cudnn.benchmark, each measured at each N",
-    )
     parser.add_argument("--out", default=None, help="also write the report to this file")
     args = parser.parse_args()
     if args.process_runs is None:  # the cores the batch stands against: its one, or all of them
@@ -186,16 +174,12 @@ def main() -> int:
         processes = measure_processes(args.process_runs, args.process_seconds)
         report(f"process backend: {args.process_runs} one-worker runs side by side: "
                f"{processes:,.0f} run-steps/s ({load()})")  # fmt: skip
-    for n, conv, tuned in [(n, conv, tuned) for n in args.runs
-                           for conv in args.conv or [CONVOLUTIONS[args.device]]
-                           for tuned in args.cudnn_benchmark]:  # fmt: skip
-        torch.backends.cudnn.benchmark = tuned == "on"
-        result = measure_batch(module, n, args.device, args.seconds, args.t_max, conv)
+    for n in args.runs:
+        result = measure_batch(module, n, args.device, args.seconds, args.t_max)
         ratio = (
             f" = {result['run_steps_s'] / processes:.2f}x the process backend" if processes else ""
         )
-        setting = f"{conv} convolutions, cudnn.benchmark {tuned}"
-        report(f"batched N={n} ({setting}): {result['run_steps_s']:,.0f} run-steps/s{ratio}; "
+        report(f"batched N={n}: {result['run_steps_s']:,.0f} run-steps/s{ratio}; "
                f"one evaluation (N x 50 episodes) {result['eval_s']:.2f} s; peak device memory "
                f"{result['memory_gib']:.1f} GiB; a thesis-scale line (50 runs x 1M steps) at "
                f"this N's speed: {thesis_line_minutes(result):.1f} min ({load()})")  # fmt: skip

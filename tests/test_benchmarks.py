@@ -230,3 +230,17 @@ def test_batched_throughput_reports_each_batch_against_the_process_backend(monke
                      result.stdout)  # fmt: skip
     assert re.search(r"batched N=2: [\d,]+ run-steps/s = [\d.]+x the process backend",
                      result.stdout)  # fmt: skip
+
+
+def test_batched_profile_times_and_profiles_a_batch(monkeypatch, capsys):
+    """A batch of 2 runs of A3C FF (CPU): its lockstep rate, then the profiler's table."""
+    result = run(
+        "batched_profile.py",
+        *("--runs", "2", "--updates", "1"),
+        monkeypatch=monkeypatch,
+        capsys=capsys,
+    )
+    assert result.returncode == 0, result.stderr
+    assert re.search(r"N=2: built in [\d.]+ s; [\d,]+ steps/s \(lockstep\), [\d,]+ run-steps/s, "
+                     r"[\d.]+ ms an update of [\d.]+ steps", result.stdout)  # fmt: skip
+    assert "Self CPU time total" in result.stdout

@@ -170,36 +170,12 @@ def lstm_cell(cell: torch.nn.LSTMCell, x: torch.Tensor, state: tuple) -> tuple:
     return torch.sigmoid(o) * torch.tanh(c), c
 
 
-def conv_as_matmul(conv: torch.nn.Conv2d, x: torch.Tensor) -> torch.Tensor:
-    """nn.Conv2d's output as im2col and one matrix product (W (O, C k k) @ cols (B, C k k, L)).
-    Under vmap over stacked weights torch turns a convolution into one grouped convolution of N
-    groups, which cuDNN runs as a kernel per group; this is one batched matmul instead. The same
-    values to float rounding (a sum's order)."""
-    cols = F.unfold(x, conv.kernel_size, conv.dilation, conv.padding, conv.stride)
-    out = conv.weight.flatten(1) @ cols
-    if conv.bias is not None:
-        out = out + conv.bias[:, None]
-    size = [(x.shape[d] + 2 * conv.padding[i] - conv.dilation[i] * (conv.kernel_size[i] - 1) - 1)
-            // conv.stride[i] + 1 for i, d in ((0, -2), (1, -1))]  # fmt: skip
-    return out.view(*out.shape[:-1], *size)
-
-
-# how the batch computes its networks' convolutions, by device: as torch's vmap gives them
-# (a grouped convolution) or as `conv_as_matmul` (benchmarks/batched_throughput.py --conv)
-CONVOLUTIONS = {"cpu": "grouped", "cuda": "grouped"}
-
-
-def vmappable(network: torch.nn.Module, convolutions: str = "grouped") -> torch.nn.Module:
-    """The network with each nn.LSTMCell stepping through `lstm_cell`, and with
-    convolutions="matmul" each plain nn.Conv2d through `conv_as_matmul` (their parameters, by
-    the same names, are still the ones functional_call substitutes)."""
+def vmappable(network: torch.nn.Module) -> torch.nn.Module:
+    """The network with each nn.LSTMCell stepping through `lstm_cell` (its parameters, by the
+    same names, are still the ones functional_call substitutes)."""
     for module in network.modules():
         if isinstance(module, torch.nn.LSTMCell):
             module.forward = functools.partial(lstm_cell, module)
-        elif convolutions == "matmul" and isinstance(module, torch.nn.Conv2d):
-            if module.groups != 1 or isinstance(module.padding, str):
-                raise ValueError(f"conv_as_matmul computes no {module}")
-            module.forward = functools.partial(conv_as_matmul, module)
     return network
 
 
@@ -306,13 +282,7 @@ class RunFiles:
 class BatchedA3C:
     """N one-worker runs of a script of BATCHED_SCRIPTS in lockstep (the module docstring)."""
 
-    def __init__(
-        self,
-        module: ModuleType,
-        runs: list[BatchedRun],
-        device: str | torch.device,
-        convolutions: str | None = None,
-    ):
+    def __init__(self, module: ModuleType, runs: list[BatchedRun], device: str | torch.device):
         self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
         self.runs = runs
         self.args = [run.args for run in runs]
@@ -326,8 +296,7 @@ class BatchedA3C:
             seeds.append(process_seed(args.seed, 0))  # the worker's seed
             self.rngs.append(np.random.default_rng(seeds[-1]))
         self.cpu_model = models[0]  # the evaluations' and checkpoints' network
-        self.convolutions = convolutions or CONVOLUTIONS[self.device.type]
-        self.base = vmappable(copy.deepcopy(models[0]).to(self.device), self.convolutions)
+        self.base = vmappable(copy.deepcopy(models[0]).to(self.device))
         params, buffers = stack_module_state(models)
         self.names = list(params)
         self.params = [params[k].detach().to(self.device) for k in self.names]

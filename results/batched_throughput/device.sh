@@ -10,9 +10,9 @@
 #
 #     results/batched_throughput/device.sh OUT [SECONDS]   (PYTHON: the interpreter)
 #
-# SECONDS: each batch's timed training (default 20). About 6 minutes in all with the default:
-# the check about 1 min, the process backend 40 s, each batch its SECONDS plus its building
-# (N networks initialised on the CPU), two warm-up updates and one evaluation.
+# SECONDS: each batch's timed training (default 20). With SECONDS 10 it took 151 s on the H200
+# (the check 16 s, the process backend 40 s, then each batch its SECONDS plus its building: N
+# networks initialised on the CPU, 14 s at N = 1024; two warm-up updates and one evaluation).
 #
 # The machine lacks gymnasium and tyro (its torch, numpy, tensorboard, pytest and hypothesis
 # do): make their wheels here, as results/campaign/COMMAND.txt says (`pip download ... -d .whl

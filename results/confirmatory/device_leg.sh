@@ -3,9 +3,11 @@
 # each line's runs as one batched program on the GPU (amendment 2 of PLAN.md), each run the plan's
 # run i exactly (its sweep command from `campaign --dry-run`, with --runs cut to RUNS and
 # `--backend batched --device $DEVICE` added). A batch's runs step together and finish together,
-# so a line's RUNS must finish within the command's 10 minutes: size it from the measured rate
-# (results/batched_throughput/cuda.txt, run-steps/s at N runs: RUNS x 250,000 / rate(RUNS) plus
-# about 30 s to build and evaluate must fit). A line cut off by its timeout leaves nothing (its
+# so a line's RUNS must finish within the command's 10 minutes. Measured on an H200 in fp32
+# (results/batched_throughput/COMMAND.txt), no line does: c6's GLPQ batch of 35 runs steps at
+# 191-235 steps/s, so its 250,000 steps take about 18-22 minutes whatever RUNS is. Size it from
+# the measured rate (results/batched_throughput/h200_fp32.txt, run-steps/s at N runs: RUNS x
+# 250,000 / rate(RUNS) plus about 30 s to build and evaluate must fit). A line cut off by its timeout leaves nothing (its
 # checkpoints, 11 MB a run, do not fit in the 64 MiB that comes back); a finished line's
 # results.csv, sweep.json, log.txt and each run's evaluations.csv and stdout.log are copied into
 # OUT under their repository paths, and a row per line for SWEEPS.tsv into OUT/SWEEPS.rows.
