@@ -244,3 +244,24 @@ def test_batched_profile_times_and_profiles_a_batch(monkeypatch, capsys):
     assert re.search(r"N=2: built in [\d.]+ s; [\d,]+ steps/s \(lockstep\), [\d,]+ run-steps/s, "
                      r"[\d.]+ ms an update of [\d.]+ steps", result.stdout)  # fmt: skip
     assert "Self CPU time total" in result.stdout
+
+
+@pytest.mark.parametrize("script", ["batched_throughput.py", "batched_profile.py"])
+def test_the_batched_benchmarks_time_the_backends_own_device_settings(script, monkeypatch, capsys):
+    """They set up torch as train_batched does (on a GPU: no TF32, which cuDNN's convolutions
+    would otherwise use) before they build a batch."""
+    module = benchmark(Path(script).stem)
+    calls = []
+    built = module.BatchedA3C
+
+    def building(*args, **kwargs):
+        assert calls, "a batch was built before the device was set up"
+        return built(*args, **kwargs)
+
+    monkeypatch.setattr(module, "set_up_device", calls.append)
+    monkeypatch.setattr(module, "BatchedA3C", building)
+    flags = {"batched_throughput.py": ("--seconds", "0.2", "--process-runs", "0"),
+             "batched_profile.py": ("--updates", "1", "--no-profile")}[script]  # fmt: skip
+    result = run(script, "--runs", "1", *flags, monkeypatch=monkeypatch, capsys=capsys)
+    assert result.returncode == 0, result.stderr
+    assert calls == ["cpu"]
