@@ -118,8 +118,10 @@ def measure_processes(count: int, seconds: float) -> float:
                 cwd=ROOT,
                 env={
                     **os.environ,
-                    "PYTHONPATH": os.pathsep.join(
-                        [str(ROOT / "agents"), str(ROOT), os.environ.get("PYTHONPATH", "")]
+                    "PYTHONPATH": os.pathsep.join(  # the caller's too (the device's wheels)
+                        filter(
+                            None, [str(ROOT / "agents"), str(ROOT), os.environ.get("PYTHONPATH")]
+                        )
                     ),
                 },
             )  # fmt: skip
