@@ -3,6 +3,7 @@ speed is measured by running the scripts themselves, never by timed tests. In pr
 script's main() with its command line."""
 
 import importlib.util
+import os
 import re
 import sys
 from pathlib import Path
@@ -265,3 +266,25 @@ def test_the_batched_benchmarks_time_the_backends_own_device_settings(script, mo
     result = run(script, "--runs", "1", *flags, monkeypatch=monkeypatch, capsys=capsys)
     assert result.returncode == 0, result.stderr
     assert calls == ["cpu"]
+
+
+def test_the_process_backends_runs_keep_the_callers_pythonpath(monkeypatch, tmp_path):
+    """On the lent GPU machine the wheels it lacks are on PYTHONPATH: the runs must see them."""
+    module = benchmark("batched_throughput")
+    envs = []
+
+    class Run:
+        returncode = 0
+
+        def __init__(self, command, env, **kwargs):
+            envs.append(env)
+
+        def communicate(self):
+            return "| SPS 100 |", ""
+
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    monkeypatch.setattr(module.subprocess, "Popen", Run)
+    assert module.measure_processes(2, 1.0) == 200.0
+    for env in envs:
+        entries = env["PYTHONPATH"].split(os.pathsep)
+        assert str(tmp_path) in entries and "" not in entries
