@@ -4,8 +4,8 @@
 # run i exactly (its sweep command from `campaign --dry-run`, with --runs cut to RUNS and
 # `--backend batched --device $DEVICE` added). A batch's runs step together and finish together,
 # so a line's RUNS must finish within the command's 10 minutes. Measured on an H200 in fp32
-# (results/batched_throughput/COMMAND.txt), no line does: c6's GLPQ batch of 35 runs steps at
-# 191-235 steps/s, so its 250,000 steps take about 18-22 minutes whatever RUNS is. Size it from
+# (results/batched_throughput/COMMAND.txt), no line does: A3C FF's batch of 50 runs steps at
+# 189 steps/s and c6's 35 GLPQ runs at 191-235, so 250,000 steps take 18-22 minutes. Size it from
 # the measured rate (results/batched_throughput/h200_fp32.txt, run-steps/s at N runs: RUNS x
 # 250,000 / rate(RUNS) plus about 30 s to build and evaluate must fit). A line cut off by its timeout leaves nothing (its
 # checkpoints, 11 MB a run, do not fit in the 64 MiB that comes back); a finished line's
