@@ -5,16 +5,17 @@ rate), then profiled over 3 updates with torch.profiler: the ops with the most h
 on a GPU, the most device time, and the kernels' time an update.
 
     python benchmarks/batched_profile.py [--device cpu|cuda] [--runs 50 1024] [--updates 20]
-        [--script agents/a3c_ff.py] [--no-profile] [-- FLAG ...]
+        [--script a3c_ff.py] [--no-profile] [-- FLAG ...]
 
 What it is for: to see whether a batch is bound by the device's arithmetic or by the host
-(kernel launches, the per-step host syncs of the env and the returns), before optimising it.
+(its Python and kernel launches, the returns computed on the host), before optimising it.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -26,8 +27,10 @@ from torch.profiler import ProfilerActivity, profile
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
 
+from a3c_runtime import UsageError  # noqa: E402
 from a3c_tools import load_script  # noqa: E402
 from a3c_tools.batched import (  # noqa: E402
+    BATCHED_SCRIPTS,
     BatchedA3C,
     BatchedRun,
     planned_args,
@@ -46,12 +49,17 @@ def main() -> int:
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--runs", type=int, nargs="+", default=[50, 1024])
     parser.add_argument("--updates", type=int, default=20)
-    parser.add_argument("--script", default="agents/a3c_ff.py")
+    parser.add_argument("--script", type=os.path.basename, default="a3c_ff.py",
+                        choices=BATCHED_SCRIPTS, help="a script the backend batches")  # fmt: skip
     parser.add_argument("--no-profile", action="store_true", help="time the updates only")
     parser.add_argument("flags", nargs="*", help="the script's flags (after --)")
     args = parser.parse_args()
+    if any(n < 1 for n in args.runs) or args.updates < 1:
+        parser.error("--runs and --updates must be >= 1")
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: torch sees no CUDA device")
     set_up_device(args.device)  # as the backend trains: one thread on a CPU, no TF32 on a GPU
-    module = load_script(ROOT / args.script)
+    module = load_script(ROOT / "agents" / args.script)
     print(f"# {args.script} {' '.join(args.flags)} on {args.device}, torch {torch.__version__}")
     for n in args.runs:
         runs = []
@@ -59,7 +67,10 @@ def main() -> int:
             lr = math.exp(math.log(1e-4) + (i + 0.5) / n * (math.log(1e-2) - math.log(1e-4)))
             flags = [*args.flags, "--num-workers", "1", "--seed", str(1 + 1000 * i),
                      "--learning-rate", str(lr), "--total-timesteps", str(10**9)]  # fmt: skip
-            runs.append(BatchedRun(resolve_run_args(planned_args(module, flags))))
+            try:
+                runs.append(BatchedRun(resolve_run_args(planned_args(module, flags))))
+            except UsageError as e:  # the script's flags, in one line
+                parser.error(str(e))
         built = time.time()
         batch = BatchedA3C(module, runs, args.device)
         built = time.time() - built

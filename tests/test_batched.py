@@ -338,6 +338,16 @@ def batched_sweep(out, *extra, runs: int = 2, steps: int = 60):
         (["--sample", "gamma=uniform:0.9:0.99"], "differ in --gamma"),
         (["--", "--t-max", "0"], "--t-max must be >= 1"),
         (["--device", "tpu"], "--device must be cpu or cuda"),
+        # a value the script's parser refuses: tyro's message, not its box's rules
+        (
+            ["--", "--activation", "tanh"],
+            "do not parse: invalid choice 'tanh' for argument "
+            "'--activation'. Expected one of ('relu', 'elu')",
+        ),
+        (
+            ["--", "--t-max", "x"],
+            "do not parse: Error parsing --t-max: invalid literal for int() with base 10: 'x'",
+        ),
     ],
 )
 def test_what_the_batched_backend_cannot_batch_is_refused_in_one_line(tmp_path, extra, says):

@@ -288,3 +288,17 @@ def test_the_process_backends_runs_keep_the_callers_pythonpath(monkeypatch, tmp_
     for env in envs:
         entries = env["PYTHONPATH"].split(os.pathsep)
         assert str(tmp_path) in entries and "" not in entries
+
+
+@pytest.mark.parametrize(
+    ("flags", "says"),
+    [
+        (["--script", "agents/a3c_nope.py"], "argument --script: invalid choice: 'a3c_nope.py'"),
+        (["--runs", "0"], "--runs and --updates must be >= 1"),
+        (["--runs", "1", "--", "--t-max", "x"], "do not parse: Error parsing --t-max"),
+    ],
+)
+def test_batched_profile_refuses_bad_input_in_one_line(flags, says, monkeypatch, capsys):
+    result = run("batched_profile.py", *flags, monkeypatch=monkeypatch, capsys=capsys)
+    assert result.returncode == 2 and says in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr

@@ -595,9 +595,14 @@ def planned_args(module: ModuleType, flags: list[str]) -> Any:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
             return tyro.cli(module.Args, args=flags)
     except SystemExit:
-        lines = [line.strip("│ ") for line in err.getvalue().splitlines() if line.strip("│ ─╭╮╰╯")]
+        # tyro's box (drawn in ASCII when stderr is not a terminal): a title, the message over
+        # one or more lines, then the flag's help or a pointer to --help
+        lines = [line.strip("│ ") for line in err.getvalue().splitlines()]
+        body = [line for line in lines if line.strip("─-╭╮╰╯│ ")][1:]
+        ends = [i for i, line in enumerate(body) if line.startswith(("Argument help", "For full"))]
+        message = " ".join(body[: ends[0] if ends else len(body)])
         raise UsageError(f"the run flags {' '.join(flags)!r} do not parse: "
-                         f"{lines[1] if len(lines) > 1 else 'see --help'}") from None  # fmt: skip
+                         f"{message or 'see --help'}") from None  # fmt: skip
 
 
 def check_batchable(script: str, runs: list[Any], out: Path) -> None:
