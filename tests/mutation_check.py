@@ -366,6 +366,10 @@ MUTANTS = [
     Mutant("batched-rmsprop-no-decay", "the batch's RMSprop statistics never decay (rho = 1)",
            BATCHED_BACKEND, "torch._foreach_mul_(self.square_avg, self.decay)",
            "torch._foreach_mul_(self.square_avg, 1.0)", (BATCH_T,)),
+    Mutant("batched-parse-names-the-rule", "a run flag the script refuses is named by tyro's "
+           "ASCII rule, not its message", BATCHED_BACKEND,
+           'body = [line for line in lines if line.strip("─-╭╮╰╯│ ")][1:]',
+           'body = [line for line in lines if line.strip("─╭╮╰╯│ ")][1:]', (BATCH_T,)),
     # --- the sweep: run i's seed and sampled flags -----------------------------------------------
     Mutant("sweep-restarts-cut-off-run", "a sweep started again runs a cut-off run from its "
            "start, not on from its checkpoint", SWEEP,
