@@ -72,6 +72,7 @@ SWEEP = ("agents/a3c_tools/sweep.py",)
 ATARI_FIGURES = ("agents/a3c_tools/atari_figures.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
 CONFIRMATORY = ("agents/a3c_tools/confirmatory.py",)
+THESIS_CLAIMS = ("agents/a3c_tools/thesis_claims.py",)
 TOOLS = ("agents/a3c_tools/__init__.py",)
 CATCH = ("catch_env/catch.py",)
 WRAPPERS = ("catch_env/wrappers.py",)
@@ -443,6 +444,15 @@ MUTANTS = [
            "claim's runs are in, not all", CONFIRMATORY,
            'if not all(complete(c["test"], c["runs"]) for c in claims):',
            'if not any(complete(c["test"], c["runs"]) for c in claims):', (CONFIRM_T,)),
+    Mutant("claims-answer-without-study-verdict", "the answer's table names each primary "
+           "claim but not its verdict once the study is looked at", THESIS_CLAIMS,
+           'if found and not primary.startswith("-"):',
+           'if not found and not primary.startswith("-"):', (CONFIRM_T,)),
+    Mutant("claims-study-points-all-reproduced", "the forest plot draws every claim of the "
+           "study as reproduced, whatever its verdict", THESIS_CLAIMS,
+           "points.append(Point(STUDY_SECTION, name, effect, low, high, o.verdict,",
+           'points.append(Point(STUDY_SECTION, name, effect, low, high, "reproduced",',
+           (CONFIRM_T,)),
     # --- the campaign runner, the run folder and the run log (run machinery) -----------------
     Mutant("campaign-goes-on-after-sigterm", "a campaign whose sweep was stopped by a signal "
            "(exit 130) goes on to the next sweep instead of stopping", CAMPAIGN,

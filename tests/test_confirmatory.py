@@ -193,8 +193,30 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     [_, _, row] = thesis_claims.confirmatory(path)
     assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
     assert thesis_claims.confirmatory_status(path).startswith("done: every run is in")
+    # ... and its verdicts follow it: the answer's column, the study's tally, the forest plot
+    assert thesis_claims.study_verdicts(path) == {"A": "inconclusive"}
+    assert thesis_claims.study_tally(path) == (
+        "**The confirmatory study at a glance**: 1 primary claim: 1 inconclusive."
+    )
+    conclusion = {"conclusion": [{"claim": "c", "rows": [], "primary": "A"},
+                                 {"claim": "d", "rows": [], "primary": "- (not run)"}]}  # fmt: skip
+    table = thesis_claims.conclusions(conclusion, [], path)
+    assert [row.split(" | ")[-1] for row in table[2:]] == [
+        "A (**inconclusive**) |",
+        "- (not run) |",
+    ]
+    d = np.array([0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
+    [point] = thesis_claims.study_points({"study_labels": {"A": "same > ff"}}, path)
+    assert point.label == "A: same > ff" and point.section == thesis_claims.STUDY_SECTION
+    assert (point.effect, point.low, point.high) == tuple(
+        round(x, 3) for x in (d.mean(), *paired.interval(d))
+    )
+    assert (point.verdict, point.colour) == ("inconclusive", thesis_claims.COLOURS["inconclusive"])
     write_line(tmp_path / "results" / "same", base[:3])  # 6 + 3 of the 12 runs in, and no look
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **under way: 9 of 12 runs in** |")
+    assert thesis_claims.study_verdicts(path) == {} and thesis_claims.study_tally(path) is None
+    assert thesis_claims.study_points({}, path) == []  # no score read before the look
+    assert thesis_claims.conclusions(conclusion, [], path)[2].endswith("| A |")
     assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 12 runs in")
     path.write_text(path.read_text() + '[[claim]]\nid = "B"\nclaim = "c"\nexperiment = "e"\n'
                     'expect = "better"\neffect = 0.1\neffect_basis = "b"\nruns = 3\n'

@@ -83,9 +83,23 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
         if line.startswith("| ") and shown:  # the decisive look's interval comes first
             rows.append((section, shown[0], cells[-2].split("**")[1]))
     points = claims.plotted(ROOT / "docs" / claims.FIGURE)
+    study = [p for p in points if p.section == claims.STUDY_SECTION]
+    points = points[len(study) :]  # the study's claims come first, once it is looked at
     drawn = [(p.section, f"{p.effect:+.3f} [{p.low:+.3f}, {p.high:+.3f}]", p.verdict)
              for p in points]  # fmt: skip
     assert drawn == rows and len(rows) >= 25
+    table = text.split("## The confirmatory study")[1].split("## Exploratory rows")[0]
+    rows_of_table = [row.split(" | ") for row in table.splitlines() if row.startswith("| P")]
+    results = {cells[0][2:]: cells for cells in rows_of_table}
+    looked = "done: every run is in" in table
+    assert bool(study) == looked and len(results) == 7
+    assert ("Above them, the confirmatory study's" in text) == looked  # the caption says so
+    for point in study:  # each drawn as the study's table gives it
+        cells = results[point.label.split(":")[0]]
+        assert cells[-2].startswith(f"{point.effect:+.3f} [{point.low:+.3f}, {point.high:+.3f}]")
+        assert cells[-1] == f"**{point.verdict}** |"
+    plan = claims.tomllib.loads(claims.CONFIRMATORY.read_text())
+    assert len(study) == (sum("atari" not in c["test"] for c in plan["claim"]) if looked else 0)
     assert all(point.colour == claims.COLOURS[point.verdict] for point in points)
     assert set(claims.COLOURS) == {"reproduced", "contradicted", "inconclusive", "no verdict"}
     assert len(set(claims.COLOURS.values())) == 4  # one colour to each verdict
@@ -178,6 +192,10 @@ def test_the_readme_quotes_the_claims_pages_tally():
     counts = page.split("**At a glance**: ")[1].split(", in ")[0]
     readme = " ".join((ROOT / "README.md").read_text().split())
     assert f"({counts})" in readme, f"README.md: quote the claims page's tally, ({counts})"
+    study = page.split("**The confirmatory study at a glance**: ")
+    if len(study) > 1:  # once the study is looked at, its tally too
+        counts = study[1].split("\n")[0].removesuffix(".")
+        assert f"({counts})" in readme, f"README.md: quote the study's tally, ({counts})"
 
 
 def write_line(folder, values, statuses=None):

@@ -44,10 +44,12 @@ line for 80% power at Holm's first level (`a3c_tools.paired.runs_for_power`). A 
 (`same_runs_as`: not counted again in the tally, and a repeated test counted once in the
 family), may be struck (`defect`: no verdict until its runs are made again) or marked
 (`mixed_precision`). The page opens with chapter 8's conclusions (`[[conclusion]]`, each
-verdict combined from its rows), then the confirmatory study's primary claims (read from
-results/confirmatory/plan.toml), then every row, exploratory, then the method.
+verdict combined from its rows, and each primary claim's verdict once the study is looked at),
+then the confirmatory study's primary claims (read from results/confirmatory/plan.toml; after
+its one look, their tally), then every row, exploratory, then the method.
 
-The forest plot has one row per claim with an interval (the paired mean effect as a dot, the
+The forest plot opens, once the confirmatory study's one look is taken, with its Catch claims
+(`study_points`), then has one row per claim with an interval (the paired mean effect as a dot, the
 interval that gives its verdict as a bar, coloured by verdict, grouped by the page's sections);
 the rows without one are left off, and the caption under it counts them. It lives at
 img/claims_forest.png beside the page (`-o docs/claims.md` writes docs/img/claims_forest.png),
@@ -549,10 +551,11 @@ def multiplicity(judged: list[Judged]) -> str:
     )
 
 
-def conclusions(claims: dict, judged: list[Judged]) -> list[str]:
+def conclusions(claims: dict, judged: list[Judged], plan_path: Path | None = None) -> list[str]:
     """The page's opening table: each of the thesis's conclusions, our verdict in a word (from
     the rows it rests on) and those rows."""
     by_id = {j.claim["id"]: j for j in judged}
+    found = study_verdicts(plan_path)  # {} until the study's one look
     out = ["| the thesis concludes (chapter 8) | our verdict | rests on | confirmatory test |",
            "|---|---|---|---|"]  # fmt: skip
     for conclusion in claims.get("conclusion", []):
@@ -562,10 +565,38 @@ def conclusions(claims: dict, judged: list[Judged]) -> list[str]:
             raise ValueError(f"conclusion {conclusion['claim']!r} names no row {unknown}")
         word = combine([head_of(by_id[row].verdict) for row in rows])
         rests = ", ".join(f"{row} ({head_of(by_id[row].verdict)})" for row in rows)
+        primary = conclusion.get("primary", "-")
+        if found and not primary.startswith("-"):  # "P6, P7" -> "P6 (**x**), P7 (**y**)"
+            primary = ", ".join(
+                f"{name} (**{found[name]}**)" if name in found else name
+                for name in primary.split(", ")
+            )
         out.append(f"| {' '.join(conclusion['claim'].split())} | **{word}** | "
-                   f"{rests or conclusion.get('none', 'no row')} | "
-                   f"{conclusion.get('primary', '-')} |")  # fmt: skip
+                   f"{rests or conclusion.get('none', 'no row')} | {primary} |")  # fmt: skip
     return out
+
+
+def study_verdicts(plan_path: Path | None = None) -> dict[str, str]:
+    """Each primary claim's verdict at the confirmatory study's one look ({} until then)."""
+    plan_path = plan_path or CONFIRMATORY
+    if not plan_path.is_file():
+        return {}
+    from a3c_tools.confirmatory import outcomes
+
+    found = outcomes(tomllib.loads(plan_path.read_text()))
+    return {} if found is None else {o.id: o.verdict for o in found}
+
+
+def study_tally(plan_path: Path | None = None) -> str | None:
+    """The confirmatory study's verdicts counted, once its one look is taken: "**The
+    confirmatory study at a glance**: 7 primary claims: 2 reproduced, ..." (None until then)."""
+    found = study_verdicts(plan_path)
+    if not found:
+        return None
+    counts = Counter(found.values())
+    parts = ", ".join(f"{counts[head]} {head}" for head in VERDICTS if counts[head])
+    claims = "primary claim" if len(found) == 1 else "primary claims"
+    return f"**The confirmatory study at a glance**: {len(found)} {claims}: {parts}."
 
 
 def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
@@ -678,10 +709,40 @@ def label(claim: dict) -> str:
     return f"{head}{line} {SYMBOLS[claim['expect']]} {base} ({form})"
 
 
-def forest_points(claims: dict) -> list[Point]:
-    """The forest plot's rows, in the page's order: every Catch claim with an interval, coloured
-    by its verdict at the page's adjusted level."""
+STUDY_SECTION = "The confirmatory study (primary claims)"  # the plot's first, once looked at
+
+
+def study_points(claims: dict, plan_path: Path | None = None) -> list[Point]:
+    """The confirmatory study's Catch claims as forest-plot rows, once its one look is taken:
+    each claim's effect and 95% interval, coloured by its verdict at the study's Holm level and
+    labelled from the claims file's `[study_labels]` (an Atari claim's effect is in game score,
+    so it is left off, as the page's Atari rows are)."""
+    plan_path = plan_path or CONFIRMATORY
+    if not plan_path.is_file():
+        return []
+    from a3c_tools.confirmatory import outcomes
+
+    plan = tomllib.loads(plan_path.read_text())
+    found = outcomes(plan)
+    if found is None:
+        return []
+    labels = claims.get("study_labels", {})
     points = []
+    for claim, o in zip(plan["claim"], found, strict=True):
+        if "atari" in claim["test"]:
+            continue
+        effect, low, high = (round(x, 3) for x in (o.effect, o.low, o.high))
+        name = f"{o.id}: {labels.get(o.id, ' '.join(claim['claim'].split()[:6]))}"
+        points.append(Point(STUDY_SECTION, name, effect, low, high, o.verdict,
+                            COLOURS[o.verdict]))  # fmt: skip
+    return points
+
+
+def forest_points(claims: dict) -> list[Point]:
+    """The forest plot's rows: the confirmatory study's Catch claims once its one look is taken
+    (study_points), then, in the page's order, every Catch row with an interval, coloured by its
+    verdict at the page's adjusted level."""
+    points = study_points(claims)
     for judged in judge(claims):
         claim = judged.claim
         looks = compared(claim)
@@ -785,6 +846,13 @@ def caption(claims: dict, rows: list[tuple[str, str, str]]) -> str:
         f"baseline for better, < for worse, \u2248 for comparable: within the band of "
         f"\u00b1{MARGIN})."
     )
+    study = study_points(claims)
+    if study:
+        text += (
+            f" Above them, the confirmatory study's {len(study)} primary claims on Catch, each "
+            "with its 95% t interval and coloured by its verdict at the study's own Holm-"
+            "adjusted level (its Atari claim, in game score, is in the table)."
+        )
     if left_off:
         text += " Left off: " + "; ".join(
             f"{sum(counts.values())} {why} ("
@@ -800,12 +868,18 @@ def render(claims: dict) -> str:
     judged = judge(claims)
     rows = [(j.ours, j.effect, j.verdict) for j in judged]
     out = [claims["intro"].strip(), "", "## The answer: the thesis's conclusions", ""]
-    out += [claims.get("answer", "").strip(), "", *conclusions(claims, judged), ""]
+    looked = bool(study_verdicts())
+    answer = claims.get("answer", "").strip()
+    status = claims.get("answer_looked" if looked else "answer_waiting", "").strip()
+    out += ["\n".join([answer, status]).strip(), "", *conclusions(claims, judged), ""]
     out += [tally(judged), "", multiplicity(judged), ""]
     table = confirmatory()
     if table:
         out += ["## The confirmatory study", "", f"**Status**: {confirmatory_status()}.", ""]
         out += [claims.get("confirmatory", "").strip(), "", *table, ""]
+        glance = study_tally()
+        if glance is not None:
+            out += [glance, ""]
     out += ["## Exploratory rows", "", claims.get("exploratory", "").strip(), ""]
     if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
         out += [f"![The claims' effects with their intervals]({FIGURE.as_posix()})", ""]
