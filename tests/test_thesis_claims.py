@@ -306,6 +306,7 @@ def write_figure(folder, rows):
 
 def test_an_atari_row_pairs_its_lines_by_seed_at_the_full_steps(tmp_path, monkeypatch):
     monkeypatch.setattr(claims, "ROOT", tmp_path)
+    monkeypatch.setattr(claims, "CONFIRMATORY", tmp_path / "plan.toml")  # no study here
     atari = {"figure": "fig", "game": "Breakout", "steps": 2_000_000, "seeds": 3, "item": "c-x"}
     claim = {"atari": atari, "baseline": "ff", "line": "lpq", "names": ["FF", "LPQ"],
              "expect": "worse", "command": "run it", "ours": "one seed: 18.8 vs 25.1",
@@ -361,6 +362,7 @@ def test_an_atari_row_pairs_its_lines_by_seed_at_the_full_steps(tmp_path, monkey
 
 def test_an_atari_row_of_one_line_is_judged_seed_by_seed_against_random_play(tmp_path, monkeypatch):
     monkeypatch.setattr(claims, "ROOT", tmp_path)
+    monkeypatch.setattr(claims, "CONFIRMATORY", tmp_path / "plan.toml")  # no study here
     atari = {"figure": "fig", "game": "Pong", "steps": 3_000_000, "seeds": 3, "item": "b-x"}
     claim = {"atari": atari, "line": "vf1.0", "names": ["--vf-coef 1.0"],
              "expect": "random play", "command": "run it"}  # fmt: skip
@@ -643,10 +645,17 @@ def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_row
         assert (
             f"| {claim['id']} | " in confirm and f"{claim['runs']} ({claim['power']:.0%}" in confirm
         )
-    status = re.findall(r"\*\*(planned, not yet run|under way: \d+ of \d+ runs in|"
-                        r"all \d+ runs in; waits for the one look)\*\* \|$",
-                        confirm, re.M)  # fmt: skip
-    assert len(status) == len(plan["claim"])  # no result before the one look
+    waiting = re.findall(r"\*\*(planned, not yet run|under way: \d+ of \d+ runs in|"
+                         r"all \d+ runs in; waits for the one look)\*\* \|$",
+                         confirm, re.M)  # fmt: skip
+    looked = re.findall(r"\] \(n = \d+\), [^|]+ \([^|]+\) \| \*\*(reproduced|contradicted|"
+                        r"inconclusive)\*\* \|$", confirm, re.M)  # fmt: skip
+    found = claims.study_verdicts()
+    # no result before the one look; after it, every claim's
+    assert (len(looked), len(waiting)) == (
+        (len(plan["claim"]), 0) if found else (0, len(plan["claim"]))
+    )
+    assert looked == [found[claim["id"]] for claim in plan["claim"]] or not found
     # the claims left out before any run: listed with what 80% power would need, not in the table
     left = plan["not_testable"]
     for entry in left:

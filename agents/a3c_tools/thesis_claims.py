@@ -876,10 +876,10 @@ def render(claims: dict) -> str:
     table = confirmatory()
     if table:
         out += ["## The confirmatory study", "", f"**Status**: {confirmatory_status()}.", ""]
-        out += [claims.get("confirmatory", "").strip(), "", *table, ""]
         glance = study_tally()
-        if glance is not None:
-            out += [glance, ""]
+        if glance is not None:  # the answer first, then how it was reached
+            out += [glance, "", claims.get("confirmatory_looked", "").strip(), ""]
+        out += [claims.get("confirmatory", "").strip(), "", *table, ""]
     out += ["## Exploratory rows", "", claims.get("exploratory", "").strip(), ""]
     if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
         out += [f"![The claims' effects with their intervals]({FIGURE.as_posix()})", ""]
