@@ -85,7 +85,10 @@ def test_a3c_throughput_compares_a_variant_with_a3c_ff_at_every_setting(monkeypa
         for k in ("1", "2")
         for replay in ("on", "off")
     }
-    assert all(int(row[4].replace(",", "")) > 0 for row in rows)
+    # a 1-s window on a slow or busy CPU can end before the first update: the benchmark then
+    # says so (its ratios are nan) rather than reporting a rate; a zero without that note fails
+    steps = [int(row[4].replace(",", "")) for row in rows]
+    assert all(steps) or "saw no step in its window" in result.stdout
     assert re.search(r"a3c_lstm: [\d.]+ MFLOP per env step", result.stdout)
 
 
