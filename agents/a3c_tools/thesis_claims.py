@@ -69,8 +69,12 @@ import sys
 from collections import Counter
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from a3c_tools import run_main
+
+if TYPE_CHECKING:  # the functions below import a3c_tools.confirmatory where they use it
+    from a3c_tools.confirmatory import Outcome
 from a3c_tools.atari_figures import EVAL_EPISODES, SEED
 from a3c_tools.paired import (
     MARGIN,
@@ -576,15 +580,22 @@ def conclusions(claims: dict, judged: list[Judged], plan_path: Path | None = Non
     return out
 
 
-def study_verdicts(plan_path: Path | None = None) -> dict[str, str]:
-    """Each primary claim's verdict at the confirmatory study's one look ({} until then)."""
+def study_outcomes(plan_path: Path | None = None) -> list[tuple[dict, Outcome]]:
+    """The confirmatory study's primary claims with their results at its one look ([] until
+    then, or without a plan)."""
     plan_path = plan_path or CONFIRMATORY
     if not plan_path.is_file():
-        return {}
+        return []
     from a3c_tools.confirmatory import outcomes
 
-    found = outcomes(tomllib.loads(plan_path.read_text()))
-    return {} if found is None else {o.id: o.verdict for o in found}
+    plan = tomllib.loads(plan_path.read_text())
+    found = outcomes(plan)
+    return [] if found is None else list(zip(plan["claim"], found, strict=True))
+
+
+def study_verdicts(plan_path: Path | None = None) -> dict[str, str]:
+    """Each primary claim's verdict at the confirmatory study's one look ({} until then)."""
+    return {o.id: o.verdict for _, o in study_outcomes(plan_path)}
 
 
 def study_tally(plan_path: Path | None = None) -> str | None:
@@ -717,18 +728,9 @@ def study_points(claims: dict, plan_path: Path | None = None) -> list[Point]:
     each claim's effect and 95% interval, coloured by its verdict at the study's Holm level and
     labelled from the claims file's `[study_labels]` (an Atari claim's effect is in game score,
     so it is left off, as the page's Atari rows are)."""
-    plan_path = plan_path or CONFIRMATORY
-    if not plan_path.is_file():
-        return []
-    from a3c_tools.confirmatory import outcomes
-
-    plan = tomllib.loads(plan_path.read_text())
-    found = outcomes(plan)
-    if found is None:
-        return []
     labels = claims.get("study_labels", {})
     points = []
-    for claim, o in zip(plan["claim"], found, strict=True):
+    for claim, o in study_outcomes(plan_path):
         if "atari" in claim["test"]:
             continue
         effect, low, high = (round(x, 3) for x in (o.effect, o.low, o.high))
