@@ -186,24 +186,29 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     # the claims page shows each claim's result once the look is taken
     path = tmp_path / "plan.toml"
     path.write_text(
-        '[study]\nalpha = 0.05\n[[claim]]\nid = "A"\nclaim = "c"\nexperiment = "e"\n'
-        'expect = "better"\neffect = 0.1\neffect_basis = "b"\nruns = 6\npower = 0.9\n'
-        'level = 0.05\ntest = { baseline = "results/ff", line = "results/same" }\n'
+        '[study]\nalpha = 0.05\npower = 0.8\nmax_runs = 100\n[[claim]]\nid = "A"\n'
+        'claim = "c"\nexperiment = "e"\nexpect = "better"\neffect = 0.1\n'
+        'effect_basis = "b"\nruns = 6\npower = 0.9\nlevel = 0.05\nitems = ["i"]\n'
+        'spread_from = { baseline = "results/ff", line = "results/same", runs = 6 }\n'
+        'test = { baseline = "results/ff", line = "results/same" }\n'
+        '[[item]]\nid = "i"\ntotal_timesteps = 250000\n'
     )
     [_, _, row] = thesis_claims.confirmatory(path)
-    assert "(n = 6)" in row and row.endswith("| **inconclusive** |")
+    budget = "250,000 steps a run on Catch, a quarter of the thesis's 1M"
+    assert "(n = 6), p of d = 0: " in row and row.endswith(f"| **inconclusive** at {budget} |")
     assert thesis_claims.confirmatory_status(path).startswith("done: every run is in")
     # ... and its verdicts follow it: the answer's column, the study's tally, the forest plot
     assert thesis_claims.study_verdicts(path) == {"A": "inconclusive"}
-    assert thesis_claims.study_tally(path) == (
-        "**The confirmatory study at a glance**: 1 primary claim: 1 inconclusive."
+    assert thesis_claims.study_tally({}, path) == (
+        f"**The confirmatory study at a glance**: 1 primary claim: 1 inconclusive; 1 at {budget}."
     )
     conclusion = {"conclusion": [{"claim": "c", "rows": [], "primary": "A"},
                                  {"claim": "d", "rows": [], "primary": "- (not run)"}]}  # fmt: skip
     table = thesis_claims.conclusions(conclusion, [], path)
-    assert [row.split(" | ")[-1] for row in table[2:]] == [
-        "A (**inconclusive**) |",
-        "- (not run) |",
+    # one answer per conclusion: the study's where it tests it, at its budget
+    assert [row.split(" | ")[1:4] for row in table[2:]] == [
+        ["**inconclusive**", budget, "A (**inconclusive**)"],
+        ["**untested** (exploratory only)", "-", "- (not run)"],
     ]
     d = np.array([0.01, -0.01, 0.0, 0.02, -0.02, 0.0])
     [point] = thesis_claims.study_points({"study_labels": {"A": "same > ff"}}, path)
@@ -214,9 +219,13 @@ def test_the_one_look_waits_for_every_run_then_judges_at_the_holm_level(tmp_path
     assert (point.verdict, point.colour) == ("inconclusive", thesis_claims.COLOURS["inconclusive"])
     write_line(tmp_path / "results" / "same", base[:3])  # 6 + 3 of the 12 runs in, and no look
     assert thesis_claims.confirmatory(path)[2].endswith("| - | **under way: 9 of 12 runs in** |")
-    assert thesis_claims.study_verdicts(path) == {} and thesis_claims.study_tally(path) is None
+    assert thesis_claims.study_verdicts(path) == {} and thesis_claims.study_tally({}, path) is None
     assert thesis_claims.study_points({}, path) == []  # no score read before the look
-    assert thesis_claims.conclusions(conclusion, [], path)[2].endswith("| A |")
+    assert thesis_claims.conclusions(conclusion, [], path)[2].split(" | ")[1:4] == [
+        "**untested** (the study's look waits)",
+        "-",
+        "A",
+    ]
     assert thesis_claims.confirmatory_status(path).endswith("under way, 9 of its 12 runs in")
     path.write_text(path.read_text() + '[[claim]]\nid = "B"\nclaim = "c"\nexperiment = "e"\n'
                     'expect = "better"\neffect = 0.1\neffect_basis = "b"\nruns = 3\n'

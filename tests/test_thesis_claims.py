@@ -88,7 +88,7 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     drawn = [(p.section, f"{p.effect:+.3f} [{p.low:+.3f}, {p.high:+.3f}]", p.verdict)
              for p in points]  # fmt: skip
     assert drawn == rows and len(rows) >= 25
-    table = text.split("## The confirmatory study")[1].split("## Exploratory rows")[0]
+    table = text.split("## The confirmatory study")[1].split("### ")[0]  # its verdicts' table
     rows_of_table = [row.split(" | ") for row in table.splitlines() if row.startswith("| P")]
     results = {cells[0][2:]: cells for cells in rows_of_table}
     looked = "done: every run is in" in table
@@ -97,7 +97,7 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
     for point in study:  # each drawn as the study's table gives it
         cells = results[point.label.split(":")[0]]
         assert cells[-2].startswith(f"{point.effect:+.3f} [{point.low:+.3f}, {point.high:+.3f}]")
-        assert cells[-1] == f"**{point.verdict}** |"
+        assert cells[-1].startswith(f"**{point.verdict}** at ")  # and its budget
     plan = claims.tomllib.loads(claims.CONFIRMATORY.read_text())
     assert len(study) == (sum("atari" not in c["test"] for c in plan["claim"]) if looked else 0)
     assert all(point.colour == claims.COLOURS[point.verdict] for point in points)
@@ -630,15 +630,17 @@ def test_a_row_with_a_known_defect_is_struck_but_stays_in_the_family():
 def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_rows():
     page = (ROOT / "docs" / "claims.md").read_text()
     heads = [line for line in page.splitlines() if line.startswith("## ")]
-    assert heads[:4] == ["## The answer: the thesis's conclusions",
+    assert heads[:5] == ["## The answer: the thesis's conclusions",
                          "## The confirmatory study",
+                         "## The next study: the thesis's budget",
                          "## Exploratory rows", "## Method"]  # fmt: skip
     assert f"**Status**: {claims.confirmatory_status()}." in page
     answer = page.split("## The answer")[1].split("## ")[0]
     table = [line for line in answer.splitlines() if line.startswith("| ")][1:]
     data = load_claims()
     assert len(table) == len(data["conclusion"]) >= 7
-    assert all(re.search(r"\| \*\*[a-z ]+\*\* \|", line) for line in table)  # a word or two
+    # a word or two, and where no confirmatory test answers it, saying so
+    assert all(re.search(r"\| \*\*[a-z ]+\*\*( \([^|]+\))? \|", line) for line in table)
     plan = claims.tomllib.loads(claims.CONFIRMATORY.read_text())
     confirm = page.split("## The confirmatory study")[1].split("## ")[0]
     for claim in plan["claim"]:
@@ -648,8 +650,8 @@ def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_row
     waiting = re.findall(r"\*\*(planned, not yet run|under way: \d+ of \d+ runs in|"
                          r"all \d+ runs in; waits for the one look)\*\* \|$",
                          confirm, re.M)  # fmt: skip
-    looked = re.findall(r"\] \(n = \d+\), [^|]+ \([^|]+\) \| \*\*(reproduced|contradicted|"
-                        r"inconclusive)\*\* \|$", confirm, re.M)  # fmt: skip
+    looked = re.findall(r"\] \(n = \d+\), p [^|]+ \([^|]+\) \| \*\*(reproduced|contradicted|"
+                        r"inconclusive)\*\* at [^|]+\|$", confirm, re.M)  # fmt: skip
     found = claims.study_verdicts()
     # no result before the one look; after it, every claim's
     assert (len(looked), len(waiting)) == (
@@ -663,8 +665,8 @@ def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_row
         assert (f"- {entry['id']}: " in confirm and f"would need {entry['runs']:,} runs per line"
                 in confirm and f"({entry['cpu_hours']:,} CPU-hours)" in confirm)  # fmt: skip
     [atari] = [line for line in table if "slightly worse than the softmax layer" in line]
-    last = atari.split(" | ")[-1]
-    assert last.startswith("- (not in the confirmatory family: ") and "almost no power" in last
+    test = atari.split(" | ")[3]  # the confirmatory test's column says why there is none
+    assert test.startswith("- (not in the confirmatory family: ") and "almost no power" in test
     primaries = {c.get("primary") for c in data["conclusion"]}
     assert not any(e["id"] in str(p) for e in left for p in primaries)
 

@@ -21,6 +21,12 @@ the same paired t test as the claims page's, Holm over the family, a verdict whe
 p is below alpha; the claims page shows it (until then, how many of each claim's runs are in:
 `runs_in`, which counts run ids and reads no score).
 
+With `spread_upper` in the plan's [study] (a confidence, as 0.8), a claim is sized for the one-sided
+upper confidence limit of its pilot's spread rather than the spread itself (`planning_spread`):
+for a study whose pilot ran at another budget, or over few pairs. An item's own
+`device_steps_per_s` replaces the study's for its device-minute estimate (a measured rate of its
+script).
+
 A `[[not_testable]]` entry is a claim left out of the family because no affordable number of
 runs gives it power: the plan states, and `--check` holds, the runs per line its test would
 need for the plan's power at the level it would have had in the family (alpha / (claims +
@@ -32,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -226,12 +233,26 @@ class Planned:
     power: float
 
 
+def planning_spread(spread: float, pairs: int, study: dict) -> float:
+    """The spread a claim is sized for: the pilot's standard deviation, or, with the study's
+    `spread_upper` (a confidence, such as 0.8), its one-sided upper confidence limit at that
+    confidence (chi-square with pairs - 1 degrees of freedom), so that a pilot that happened to
+    spread narrowly does not leave the study underpowered (Browne 1995)."""
+    confidence = study.get("spread_upper")
+    if confidence is None:
+        return spread
+    from scipy import stats
+
+    df = pairs - 1
+    return spread * math.sqrt(df / stats.chi2.ppf(1 - float(confidence), df))
+
+
 def plan_claim(claim: dict, size: int, study: dict) -> Planned:
     """The runs per line for a primary claim, in a family of `size` claims."""
     d = differences(claim["spread_from"])
     if d.size < 3:
         raise ValueError(f"{claim['id']}: {d.size} committed pairs, fewer than 3 give no spread")
-    spread = float(d.std(ddof=1))
+    spread = planning_spread(float(d.std(ddof=1)), int(d.size), study)
     level = study["alpha"] / size
     effect = float(claim["effect"])
     gap = abs(MARGIN - abs(effect)) if claim["expect"] == "comparable" else abs(effect)
@@ -392,7 +413,8 @@ def compute(plan: dict) -> str:
         steps = int(item.get("total_timesteps", item.get("steps", 0)))
         count = len(item["rate_from"])
         h = cpu_hours(item)
-        m = runs * steps * count / rates[item["kind"]] / 60
+        rate = float(item.get("device_steps_per_s", rates[item["kind"]]))  # an item's own
+        m = runs * steps * count / rate / 60
         hours, minutes = hours + h, minutes + m
         lines.append(f"| {item['id']} | {runs} x {count} | {steps:,} | {h:.1f} | {m:.0f} |")
     lines.append(f"| **all** | | | **{hours:.1f}** | **{minutes:.0f}** |")

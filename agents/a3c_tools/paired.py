@@ -231,35 +231,44 @@ MAX_POWER_RUNS = 5000  # beyond this many runs per line, "more than" is said ins
 SQRT2 = math.sqrt(2)
 
 
+def chi_integral(given_w, df: int, points: list[float]) -> float:
+    """E[given_w(W)] for W ~ chi(df), the sample spread's law (s = sigma W / sqrt(df)),
+    integrated where its density is not negligible, `points` marked for the quadrature."""
+    from scipy import integrate, stats
+
+    log_norm = (df / 2 - 1) * math.log(2) + math.lgamma(df / 2)  # chi(df)'s density's
+
+    def weighted(w: float) -> float:
+        if w <= 0:
+            return 0.0
+        return given_w(w) * math.exp((df - 1) * math.log(w) - w * w / 2 - log_norm)
+
+    low, high = stats.chi.ppf(1e-15, df), stats.chi.isf(1e-15, df)
+    inside = [min(max(x, low), high) for x in points]
+    found = integrate.quad(weighted, low, high, points=inside, limit=200)[0]
+    return float(min(max(found, 0.0), 1.0))
+
+
 def power(effect: float, spread: float, runs: int, alpha: float) -> float:
     """The power of the two-sided paired t test at level `alpha` over `runs` pairs, when the
     differences have mean `effect` and standard deviation `spread`: P(|T| > t(1 - alpha/2,
     n - 1)) with T noncentral t (n - 1 degrees of freedom, noncentrality effect sqrt(n) /
     spread; `scipy.stats.nct`)."""
-    from scipy import integrate, stats
+    from scipy import stats
 
     if runs < 2:
         return 0.0
     df, shift = runs - 1, effect * math.sqrt(runs) / spread
     q = stats.t.ppf(1 - alpha / 2, df)
 
-    # T = (Z + shift) / (W / sqrt(df)), Z normal, W chi(df): P(|T| > q) integrated over W where
-    # its density is not negligible, with the point where |T| = q at Z = 0 marked for the
-    # quadrature. Not scipy's nct, which gives nan or ~0 far out (a large shift at few degrees
-    # of freedom, or hundreds of degrees of freedom).
-    log_norm = (df / 2 - 1) * math.log(2) + math.lgamma(df / 2)  # chi(df)'s density's
-
+    # T = (Z + shift) / (W / sqrt(df)), Z normal, W chi(df): P(|T| > q) given W, with the
+    # point where |T| = q at Z = 0 marked for the quadrature. Not scipy's nct, which gives nan
+    # or ~0 far out (a large shift at few degrees of freedom, or hundreds of them).
     def given_w(w: float) -> float:  # plain math: scipy's per-call cost, times quad's points
-        if w <= 0:
-            return 0.0
         scale = q * w / math.sqrt(df)
-        both_tails = 0.5 * (math.erfc((scale - shift) / SQRT2) + math.erfc((scale + shift) / SQRT2))
-        return both_tails * math.exp((df - 1) * math.log(w) - w * w / 2 - log_norm)
+        return 0.5 * (math.erfc((scale - shift) / SQRT2) + math.erfc((scale + shift) / SQRT2))
 
-    low, high = stats.chi.ppf(1e-15, df), stats.chi.isf(1e-15, df)
-    edge = min(max(shift * math.sqrt(df) / q, low), high)
-    found = integrate.quad(given_w, low, high, points=[edge, math.sqrt(df)], limit=200)[0]
-    return float(min(max(found, 0.0), 1.0))
+    return chi_integral(given_w, df, [shift * math.sqrt(df) / q, math.sqrt(df)])
 
 
 def runs_for_power(effect: float, spread: float, alpha: float, target: float = 0.8) -> int | None:
@@ -287,6 +296,92 @@ def runs_for_power(effect: float, spread: float, alpha: float, target: float = 0
             return None
         n += 1
     return n
+
+
+def equivalence_power(
+    effect: float, spread: float, runs: int, alpha: float, margin: float = MARGIN
+) -> float:
+    """The power of a "comparable" verdict as the page and the study take it: the chance that
+    the two-sided (1 - alpha) t interval of the mean over `runs` pairs lies wholly inside
+    +-margin (two one-sided tests at alpha / 2 each), when the differences have mean `effect`
+    and standard deviation `spread`. `power` of |mean| = margin is not this: at a true 0 it
+    counts a rejection at either edge, and the interval must clear both."""
+    from scipy import stats
+
+    if runs < 2:
+        return 0.0
+    df, se = runs - 1, spread / math.sqrt(runs)
+    q = stats.t.ppf(1 - alpha / 2, df)
+
+    def given_w(w: float) -> float:  # the interval's half-width is q se w / sqrt(df)
+        half = q * se * w / math.sqrt(df)
+        if half >= margin:
+            return 0.0
+        upper, lower = (margin - half - effect) / se, (-margin + half - effect) / se
+        return 0.5 * (math.erfc(-upper / SQRT2) - math.erfc(-lower / SQRT2))
+
+    return chi_integral(given_w, df, [math.sqrt(df), margin * math.sqrt(df) / (q * se)])
+
+
+def smallest_effect(spread: float, runs: int, alpha: float, target: float = POWER) -> float:
+    """The smallest |effect| that the two-sided paired t test at `alpha` over `runs` pairs
+    detects with `target` power at this spread (the power `power` gives grows with it)."""
+    from scipy import optimize
+
+    high = spread
+    while power(high, spread, runs, alpha) < target:
+        high *= 2
+    return float(optimize.brentq(lambda e: power(e, spread, runs, alpha) - target, 0, high))
+
+
+def equivalence_reach(
+    spread: float, runs: int, alpha: float, margin: float = MARGIN, target: float = POWER
+) -> float | None:
+    """The largest true |difference| at which a "comparable" verdict (`equivalence_power`) still
+    has `target` power, or None where even a true 0 has less."""
+    from scipy import optimize
+
+    if equivalence_power(0.0, spread, runs, alpha, margin) < target:
+        return None
+    return float(optimize.brentq(
+        lambda e: equivalence_power(e, spread, runs, alpha, margin) - target, 0, margin
+    ))  # fmt: skip
+
+
+def equivalence_runs(
+    effect: float, spread: float, alpha: float, target: float = POWER, margin: float = MARGIN
+) -> int | None:
+    """The fewest runs per line at which a "comparable" verdict (`equivalence_power`) has
+    `target` power at a true difference `effect`; None beyond MAX_POWER_RUNS."""
+    if abs(effect) >= margin:
+        return None
+
+    def enough(n: int) -> bool:
+        return equivalence_power(effect, spread, n, alpha, margin) >= target
+
+    # from the two-sided test's runs (equivalence needs as many or more), up in steps of 5%,
+    # then down to the fewest
+    n = max(2, runs_for_power(margin - abs(effect), spread, alpha, target) or MAX_POWER_RUNS)
+    while not enough(n):
+        if n >= MAX_POWER_RUNS:
+            return None
+        n = min(MAX_POWER_RUNS, n + max(1, n // 20))
+    while n > 2 and enough(n - 1):
+        n -= 1
+    return n
+
+
+def spread_interval(
+    spread: float, pairs: int, confidence: float = CONFIDENCE
+) -> tuple[float, float]:
+    """The interval of a standard deviation estimated from `pairs` differences (chi-square with
+    pairs - 1 degrees of freedom, normal differences): how loosely a pilot's spread holds."""
+    from scipy import stats
+
+    df = pairs - 1
+    tail = (1 - confidence) / 2
+    return (spread * math.sqrt(df / stats.chi2.isf(tail, df)),
+            spread * math.sqrt(df / stats.chi2.ppf(tail, df)))  # fmt: skip
 
 
 def game_of(env_id: str) -> str:

@@ -75,6 +75,7 @@ from a3c_tools import run_main
 
 if TYPE_CHECKING:  # the functions below import a3c_tools.confirmatory where they use it
     from a3c_tools.confirmatory import Outcome
+    from a3c_tools.study_reading import Reading
 from a3c_tools.atari_figures import EVAL_EPISODES, SEED
 from a3c_tools.paired import (
     MARGIN,
@@ -86,6 +87,7 @@ from a3c_tools.paired import (
     p_value,
     pair,
     random_play,
+    read_rows,
     read_scores,
     runs_for_power,
 )
@@ -99,6 +101,8 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository
 CLAIMS = Path(__file__).with_name("thesis_claims.toml")
 FIGURE = Path("img/claims_forest.png")  # the forest plot, relative to the page
 CONFIRMATORY = ROOT / "results" / "confirmatory" / "plan.toml"  # the pre-registered study
+# the next study, planned before any of its runs: the thesis's own budget (1M steps a Catch run)
+CONFIRMATORY_NEXT = ROOT / "results" / "confirmatory_1m" / "plan.toml"
 ALPHA = 0.05  # the page's family-wise level: a verdict needs its Holm-adjusted p below it
 POWER = 0.8  # the power an inconclusive row's "runs per line" is computed for
 REQUIRED = ("id", "claim", "where", "form", "thesis", "history")  # every row's fields
@@ -522,7 +526,25 @@ def tally(judged: list[Judged]) -> str:
     if again:
         text += f" ({len(again)} re-use another row's runs and are not counted again: "
         text += ", ".join(again) + ")"
+    budgets = Counter(row_steps(j.claim) for j in judged)
+    shown = [f"{steps:,} on {game} ({count})" for (game, steps), count in
+             sorted(budgets.items(), key=lambda b: (b[0][0] != "Catch", b[0][1]))
+             if game]  # fmt: skip
+    if shown:
+        text += (f"; steps a run (rows): {', '.join(shown)}, where the thesis's runs were 1M "
+                 "on Catch and 60M on Atari")  # fmt: skip
     return text + "."
+
+
+def row_steps(claim: dict) -> tuple[str, int]:
+    """(game, steps a run) of a row's runs: an Atari row's steps; a Catch row's, its lines'
+    longest finished run (to the 1,000); ("", 0) for a row with no lines of its own."""
+    if "atari" in claim:
+        return claim["atari"]["game"], int(claim["atari"]["steps"])
+    steps = [int(row["final_step"]) for key in ("baseline", "line") if key in claim
+             for row in read_rows(ROOT / claim[key])
+             if row.get("status") == "ok" and row.get("final_step")]  # fmt: skip
+    return ("Catch", round(max(steps), -3)) if steps else ("", 0)
 
 
 def multiplicity(judged: list[Judged]) -> str:
@@ -556,12 +578,16 @@ def multiplicity(judged: list[Judged]) -> str:
 
 
 def conclusions(claims: dict, judged: list[Judged], plan_path: Path | None = None) -> list[str]:
-    """The page's opening table: each of the thesis's conclusions, our verdict in a word (from
-    the rows it rests on) and those rows."""
+    """The page's opening table: one answer per conclusion of chapter 8, at its budget: the
+    confirmatory study's where it tests the conclusion (its primary claims' answers combined),
+    the exploratory rows' where it does not (and, until the study's look, everywhere); the
+    rows, weaker evidence, beside it."""
+    from a3c_tools.study_reading import budget_text
+
     by_id = {j.claim["id"]: j for j in judged}
-    found = study_verdicts(plan_path)  # {} until the study's one look
-    out = ["| the thesis concludes (chapter 8) | our verdict | rests on | confirmatory test |",
-           "|---|---|---|---|"]  # fmt: skip
+    found = study_readings(claims, plan_path)  # {} until the study's one look
+    out = ["| the thesis concludes (chapter 8) | our answer | at (steps a run) | confirmatory "
+           "test | exploratory rows (weaker evidence) |", "|---|---|---|---|---|"]  # fmt: skip
     for conclusion in claims.get("conclusion", []):
         rows = conclusion.get("rows", [])
         unknown = [row for row in rows if row not in by_id]
@@ -569,15 +595,46 @@ def conclusions(claims: dict, judged: list[Judged], plan_path: Path | None = Non
             raise ValueError(f"conclusion {conclusion['claim']!r} names no row {unknown}")
         word = combine([head_of(by_id[row].verdict) for row in rows])
         rests = ", ".join(f"{row} ({head_of(by_id[row].verdict)})" for row in rows)
+        exploratory = f"{word}: {rests}" if rests else conclusion.get("none", "no row")
         primary = conclusion.get("primary", "-")
-        if found and not primary.startswith("-"):  # "P6, P7" -> "P6 (**x**), P7 (**y**)"
-            primary = ", ".join(
-                f"{name} (**{found[name]}**)" if name in found else name
-                for name in primary.split(", ")
-            )
-        out.append(f"| {' '.join(conclusion['claim'].split())} | **{word}** | "
-                   f"{rests or conclusion.get('none', 'no row')} | {primary} |")  # fmt: skip
+        names = [] if primary.startswith("-") else primary.split(", ")
+        read = [found[name] for name in names if name in found]
+        if names and len(read) == len(names):
+            answer = f"**{combine([head_of(r.answer) for r in read])}**"
+            at = "; ".join(dict.fromkeys(r.budget for r in read))
+            test = ", ".join(
+                f"{r.id} (**{r.verdict}**)" if r.answer == r.verdict
+                else f"{r.id} (**{r.verdict}** by the plan's rule; the data: {r.answer})"
+                for r in read
+            )  # fmt: skip
+        else:
+            waiting = "the study's look waits" if names else "exploratory only"
+            answer = f"**{word}** ({waiting})"
+            games: dict[int, list[str]] = {}
+            for game, steps in dict.fromkeys(row_steps(by_id[row].claim) for row in rows):
+                if game:
+                    games.setdefault(steps, []).append(game)
+            at = "; ".join(budget_text(" and ".join(g), steps) for steps, g in games.items())
+            at = at or "-"
+            test = primary
+        cells = [conclusion["claim"], answer, at, test, exploratory]
+        out.append("| " + " | ".join(" ".join(c.split()) for c in cells) + " |")
     return out
+
+
+def study_readings(claims: dict, plan_path: Path | None = None) -> dict[str, Reading]:
+    """Each primary claim of the confirmatory study read as a referee would (its budget, its
+    power planned and achieved, what the data show: a3c_tools.study_reading), with the claims
+    file's notes and line names; {} until its one look."""
+    plan_path = plan_path or CONFIRMATORY
+    found = study_outcomes(plan_path)
+    if not found:
+        return {}
+    from a3c_tools.study_reading import readings
+
+    plan = tomllib.loads(plan_path.read_text())
+    notes, names = claims.get("study_notes", {}), claims.get("study_lines", {})
+    return {r.id: r for r in readings(plan, [o for _, o in found], notes, names)}
 
 
 def study_outcomes(plan_path: Path | None = None) -> list[tuple[dict, Outcome]]:
@@ -598,19 +655,26 @@ def study_verdicts(plan_path: Path | None = None) -> dict[str, str]:
     return {o.id: o.verdict for _, o in study_outcomes(plan_path)}
 
 
-def study_tally(plan_path: Path | None = None) -> str | None:
-    """The confirmatory study's verdicts counted, once its one look is taken: "**The
-    confirmatory study at a glance**: 7 primary claims: 2 reproduced, ..." (None until then)."""
-    found = study_verdicts(plan_path)
+def study_tally(claims: dict | None = None, plan_path: Path | None = None) -> str | None:
+    """The confirmatory study's verdicts counted, once its one look is taken, with the budgets
+    they hold at and the claims whose data the rule leaves open: "**The confirmatory study at a
+    glance**: 7 primary claims: 2 reproduced, ... (at ...)" (None until then)."""
+    found = study_readings(claims or {}, plan_path)
     if not found:
         return None
-    counts = Counter(found.values())
+    counts = Counter(r.verdict for r in found.values())
     parts = ", ".join(f"{counts[head]} {head}" for head in VERDICTS if counts[head])
-    claims = "primary claim" if len(found) == 1 else "primary claims"
-    return f"**The confirmatory study at a glance**: {len(found)} {claims}: {parts}."
+    beyond = [f"{r.id}'s data read {head_of(r.answer)}" for r in found.values()
+              if r.answer != r.verdict]  # fmt: skip
+    if beyond:  # (only an inconclusive claim is read beyond the plan's rule)
+        parts += f", of which {', '.join(beyond)}"
+    budgets = Counter(r.budget for r in found.values())
+    at = " and ".join(f"{count} at {budget}" for budget, count in budgets.items())
+    name = "primary claim" if len(found) == 1 else "primary claims"
+    return f"**The confirmatory study at a glance**: {len(found)} {name}: {parts}; {at}."
 
 
-def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
+def confirmatory(plan_path: Path = CONFIRMATORY, claims: dict | None = None) -> list[str]:
     """The confirmatory section's table, from the pre-registered plan: each primary claim, its
     experiment, the effect it must detect, its runs per line and power, and its status; then
     the claims the plan left out as not testable, with the runs and CPU-hours they would need."""
@@ -620,9 +684,10 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
 
     plan = tomllib.loads(plan_path.read_text())
     found = outcomes(plan)  # None until every claim's runs are in: one look
+    read = study_readings(claims or {}, plan_path) if found is not None else {}
     progress = [runs_in(claim["test"], claim["runs"]) for claim in plan.get("claim", [])]
     out = ["| id | primary claim | experiment | effect to detect | runs per line (power) | "
-           "effect [95% t interval], p (Holm) | verdict |",
+           "effect [95% t interval], p and its null (Holm) | verdict, at its budget |",
            "|---|---|---|---|---|---|---|"]  # fmt: skip
     for i, claim in enumerate(plan.get("claim", [])):
         result, verdict = "-", "**planned, not yet run**"
@@ -633,11 +698,13 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
         elif done:
             verdict = f"**under way: {done} of {needed} runs in**"
         if found is not None:
-            o = found[i]
+            o, r = found[i], read[claim["id"]]
             f = ".3f" if "atari" not in claim["test"] else ".1f"
             result = (f"{o.effect:+{f}} [{o.low:+{f}}, {o.high:+{f}}] (n = {o.pairs}), "
-                      f"{shown_p(o.p)} ({shown_p(o.adjusted)})")  # fmt: skip
-            verdict = f"**{o.verdict}**"
+                      f"p {r.null}: {shown_p(o.p)} ({shown_p(o.adjusted)})")  # fmt: skip
+            verdict = f"**{o.verdict}** at {r.budget}"
+            if r.answer != o.verdict:  # the plan's rule leaves open what the data show
+                verdict += f"; the data: {r.answer}"
         cells = [claim["id"], claim["claim"], claim["experiment"],
                  f"{claim['effect']:+g} ({claim['effect_basis']})".replace("+0 (", "0 ("),
                  f"{claim['runs']} ({claim['power']:.0%} at {claim['level']:.4f})",
@@ -657,6 +724,25 @@ def confirmatory(plan_path: Path = CONFIRMATORY) -> list[str]:
                 f"{entry['max_runs']} runs a line we can afford give {entry['power']:.0%}."
             )
     return out
+
+
+def study_reading_sections(claims: dict, plan_path: Path = CONFIRMATORY) -> list[str]:
+    """After the study's look: each claim's power, planned and achieved, and what each verdict
+    rests on (a3c_tools.study_reading); [] until the look."""
+    found = study_readings(claims, plan_path)
+    if not found:
+        return []
+    from a3c_tools.study_reading import power_table
+
+    plan = tomllib.loads(plan_path.read_text())
+    out = ["### Power, planned and achieved", "", claims.get("study_power", "").strip(), ""]
+    out += [*power_table(list(found.values()), plan), ""]
+    out += ["### What each verdict rests on", "", claims.get("study_rests", "").strip(), ""]
+    for r in found.values():
+        call = r.verdict if r.answer == r.verdict else f"{r.verdict}; the data: {r.answer}"
+        notes = "; ".join(r.notes)
+        out.append(f"- **{r.id}** ({call}; {r.budget}){': ' + notes if notes else ''}.")
+    return [*out, ""]
 
 
 def confirmatory_status(plan_path: Path = CONFIRMATORY) -> str:
@@ -875,13 +961,19 @@ def render(claims: dict) -> str:
     status = claims.get("answer_looked" if looked else "answer_waiting", "").strip()
     out += ["\n".join([answer, status]).strip(), "", *conclusions(claims, judged), ""]
     out += [tally(judged), "", multiplicity(judged), ""]
-    table = confirmatory()
+    table = confirmatory(CONFIRMATORY, claims)
     if table:
         out += ["## The confirmatory study", "", f"**Status**: {confirmatory_status()}.", ""]
-        glance = study_tally()
+        glance = study_tally(claims)
         if glance is not None:  # the answer first, then how it was reached
             out += [glance, "", claims.get("confirmatory_looked", "").strip(), ""]
         out += [claims.get("confirmatory", "").strip(), "", *table, ""]
+        out += study_reading_sections(claims)
+    following = confirmatory(CONFIRMATORY_NEXT, claims)
+    if following:
+        out += ["## The next study: the thesis's budget", "",
+                f"**Status**: {confirmatory_status(CONFIRMATORY_NEXT)}.", "",
+                claims.get("next_study", "").strip(), "", *following, ""]  # fmt: skip
     out += ["## Exploratory rows", "", claims.get("exploratory", "").strip(), ""]
     if any(effect != "-" for _, effect, _ in rows):  # the figure main writes beside the page
         out += [f"![The claims' effects with their intervals]({FIGURE.as_posix()})", ""]
