@@ -73,6 +73,7 @@ ATARI_FIGURES = ("agents/a3c_tools/atari_figures.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
 CONFIRMATORY = ("agents/a3c_tools/confirmatory.py",)
 THESIS_CLAIMS = ("agents/a3c_tools/thesis_claims.py",)
+STUDY_READING = ("agents/a3c_tools/study_reading.py",)
 TOOLS = ("agents/a3c_tools/__init__.py",)
 CATCH = ("catch_env/catch.py",)
 WRAPPERS = ("catch_env/wrappers.py",)
@@ -96,6 +97,7 @@ SWEEP_T = "tests/test_sweep.py"
 COMPARE_T = "tests/test_compare.py"
 CLAIMS_T = "tests/test_thesis_claims.py"
 CONFIRM_T = "tests/test_confirmatory.py"
+STUDY_T = "tests/test_study_reading.py"
 CAMPAIGN_T = "tests/test_campaign.py"
 RUN_FOLDER_T = "tests/test_runtime_run_folder.py"
 RUN_LOG_T = "tests/test_runtime_run_log.py"
@@ -444,10 +446,26 @@ MUTANTS = [
            "claim's runs are in, not all", CONFIRMATORY,
            'if not all(complete(c["test"], c["runs"]) for c in claims):',
            'if not any(complete(c["test"], c["runs"]) for c in claims):', (CONFIRM_T,)),
-    Mutant("claims-answer-without-study-verdict", "the answer's table names each primary "
-           "claim but not its verdict once the study is looked at", THESIS_CLAIMS,
-           'if found and not primary.startswith("-"):',
-           'if not found and not primary.startswith("-"):', (CONFIRM_T,)),
+    Mutant("claims-answer-without-study-verdict", "the answer's table takes the exploratory "
+           "rows' word where the study has answered the conclusion", THESIS_CLAIMS,
+           "if names and len(read) == len(names):", "if names and len(read) == len(names) + 1:",
+           (CONFIRM_T, STUDY_T)),
+    Mutant("equivalence-power-one-side", "a comparable verdict's power needs the interval clear "
+           "of one edge of the band only", PAIRED,
+           "return 0.5 * (math.erfc(-upper / SQRT2) - math.erfc(-lower / SQRT2))",
+           "return 0.5 * math.erfc(-upper / SQRT2)", (STUDY_T,)),
+    Mutant("reading-comparable-inside-band", "an inconclusive comparable claim whose interval "
+           "straddles the band's edge reads 'not comparable'", STUDY_READING,
+           "if outcome.low > MARGIN or outcome.high < -MARGIN:",
+           "if outcome.high > MARGIN or outcome.high < -MARGIN:", (STUDY_T,)),
+    Mutant("reading-study-power-at-pilot-spread", "the sensitivity power is computed at the "
+           "pilot's spread, not the study's", STUDY_READING,
+           "at_study = power(abs(effect), study_spread, runs, level)",
+           "at_study = power(abs(effect), planned.spread, runs, level)", (STUDY_T,)),
+    Mutant("planning-spread-lower-limit", "the next study is sized for the lower confidence "
+           "limit of its pilots' spread", CONFIRMATORY,
+           "return spread * math.sqrt(df / stats.chi2.ppf(1 - float(confidence), df))",
+           "return spread * math.sqrt(df / stats.chi2.ppf(float(confidence), df))", (STUDY_T,)),
     Mutant("claims-study-points-all-reproduced", "the forest plot draws every claim of the "
            "study as reproduced, whatever its verdict", THESIS_CLAIMS,
            "points.append(Point(STUDY_SECTION, name, effect, low, high, o.verdict,",
@@ -553,6 +571,25 @@ MUTANTS = [
            "taken for another run's checkpoint and refused", SWEEP,
            'skip = ("precision",) if getattr(given, "precision", None) == "auto" else ()',
            "skip = ()", ("tests/test_safe_loading.py", SWEEP_T)),
+    # --- issue 103: a file from someone else is data by construction ----------------------------
+    Mutant("resume-predated-flag-takes-given-value", "--resume takes a flag the checkpoint "
+           "predates from the command line, so a changed non-resumable one (--rms-init 1) is "
+           "accepted silently", RESUME,
+           "values[name] = trained[name] if name in trained else getattr(agent.Args(), name)",
+           "values[name] = trained[name] if name in trained else getattr(args, name)", (RES,)),
+    Mutant("resume-predated-flag-not-compared", "--resume accepts a changed non-resumable flag "
+           "silently where the checkpoint predates it", RESUME,
+           "        if name not in RESUMABLE:\n",
+           "        if name not in RESUMABLE and name in checkpoint.args:\n", (RES,)),
+    Mutant("checkpoint-script-name-prefix-only", "a checkpoint's script passes the gate when "
+           "it only begins with an agent script's name (a3c_ff.py/../../elsewhere.py)",
+           CHECKPOINTS, 'if raw["script"] and not SCRIPT_NAME.fullmatch(raw["script"]):',
+           'if raw["script"] and not SCRIPT_NAME.match(raw["script"]):',
+           ("tests/test_safe_loading.py", CKPT)),
+    Mutant("checkpoint-one-finite-weight-passes", "a network with one finite weight in each "
+           "tensor passes the gate: a NaN among finite weights is loaded", CHECKPOINTS,
+           "and not bool(torch.isfinite(tensor).all()):",
+           "and not bool(torch.isfinite(tensor).any()):", ("tests/test_safe_loading.py", CKPT)),
 ]
 # fmt: on
 

@@ -221,3 +221,16 @@ def test_the_next_study_is_on_the_page_as_planned():
     assert [r[0] for r in rows] == ["Q1", "Q2", "Q3"]
     assert all(r[-1] == "**planned, not yet run**" for r in rows)
     assert thesis_claims.CONFIRMATORY_NEXT == NEXT
+
+
+def test_the_readings_sensitivity_is_at_the_studys_own_spread():
+    study = load(PLAN)
+    found = dict(zip([c["id"] for c in study["claim"]], confirmatory.outcomes(study), strict=True))
+    for claim_id, runs in (("P1", 15), ("P5", 8)):
+        c = claim(study, claim_id)
+        r = study_reading.read(c, found[claim_id], study)
+        _, _, _, d = differences(c["test"], runs)
+        assert r.study_spread == pytest.approx(d.std(ddof=1))
+        expected = nct_power(abs(c["effect"]), d.std(ddof=1), runs, LEVEL)
+        assert r.study_power == pytest.approx(expected, abs=1e-3)
+        assert r.testable and r.verdict == "inconclusive" == r.answer

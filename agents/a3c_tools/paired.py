@@ -311,16 +311,16 @@ def equivalence_power(
     if runs < 2:
         return 0.0
     df, se = runs - 1, spread / math.sqrt(runs)
-    q = stats.t.ppf(1 - alpha / 2, df)
+    edge = stats.t.ppf(1 - alpha / 2, df)  # the interval's t quantile
 
-    def given_w(w: float) -> float:  # the interval's half-width is q se w / sqrt(df)
-        half = q * se * w / math.sqrt(df)
+    def given_w(w: float) -> float:  # the interval's half-width is edge se w / sqrt(df)
+        half = edge * se * w / math.sqrt(df)
         if half >= margin:
             return 0.0
         upper, lower = (margin - half - effect) / se, (-margin + half - effect) / se
         return 0.5 * (math.erfc(-upper / SQRT2) - math.erfc(-lower / SQRT2))
 
-    return chi_integral(given_w, df, [math.sqrt(df), margin * math.sqrt(df) / (q * se)])
+    return chi_integral(given_w, df, [math.sqrt(df), margin * math.sqrt(df) / (edge * se)])
 
 
 def smallest_effect(spread: float, runs: int, alpha: float, target: float = POWER) -> float:

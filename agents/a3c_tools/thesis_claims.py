@@ -46,7 +46,11 @@ family), may be struck (`defect`: no verdict until its runs are made again) or m
 (`mixed_precision`). The page opens with chapter 8's conclusions (`[[conclusion]]`, each
 verdict combined from its rows, and each primary claim's verdict once the study is looked at),
 then the confirmatory study's primary claims (read from results/confirmatory/plan.toml; after
-its one look, their tally), then every row, exploratory, then the method.
+its one look, their tally, and each claim read as a referee would: its budget, its power planned
+and achieved, where its effect lies, what its data show where the plan's rule leaves it open,
+a3c_tools.study_reading), then the next study (results/confirmatory_1m/plan.toml, planned until
+its look), then every row, exploratory, then the method. A conclusion's answer is its primary
+claims' (`conclusions`), or its rows' where the study does not test it.
 
 The forest plot opens, once the confirmatory study's one look is taken, with its Catch claims
 (`study_points`), then has one row per claim with an interval (the paired mean effect as a dot, the
