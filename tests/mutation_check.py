@@ -373,6 +373,23 @@ MUTANTS = [
            "ASCII rule, not its message", BATCHED_BACKEND,
            'body = [line for line in lines if line.strip("─-╭╮╰╯│ ")][1:]',
            'body = [line for line in lines if line.strip("─╭╮╰╯│ ")][1:]', (BATCH_T,)),
+    Mutant("batched-k-envs-as-one", "a run with K = 4 envs per worker is batched, silently as "
+           "K = 1", BATCHED_BACKEND, '"envs_per_worker": ("1", lambda v: v == 1),',
+           '"envs_per_worker": ("1", lambda v: v >= 1),', (BATCH_T,)),
+    Mutant("batched-one-wall-clock", "every run resumed in a batch goes on from run 0's "
+           "checkpoint wall time", BATCHED_BACKEND,
+           "self.wall_offsets[i] = checkpoint.wall_time",
+           "self.wall_offsets[i] = checkpoints[0].wall_time", (BATCH_T,)),
+    Mutant("batched-one-episode-step", "runs resuming at one global step but at different steps "
+           "of their episodes are one batch", BATCHED_BACKEND,
+           "group = groups.setdefault((start, episode_row(checkpoint)), [])",
+           "group = groups.setdefault((start, BALL_START_ROW), [])", (BATCH_T,)),
+    Mutant("batched-stopped-by-sigint", "a batch stopped by SIGTERM says SIGINT", BATCHED_BACKEND,
+           'outcome = f"stopped by {stopped_by}" if stopped_by else "done"',
+           'outcome = "stopped by SIGINT" if stopped_by else "done"', (BATCH_T,)),
+    Mutant("batched-cudnn-free", "cuDNN may pick nondeterministic algorithms for a batch on CUDA",
+           BATCHED_BACKEND, "torch.backends.cudnn.deterministic = True",
+           "torch.backends.cudnn.deterministic = False", (BATCH_T,)),
     # --- the sweep: run i's seed and sampled flags -----------------------------------------------
     Mutant("sweep-restarts-cut-off-run", "a sweep started again runs a cut-off run from its "
            "start, not on from its checkpoint", SWEEP,

@@ -8,6 +8,8 @@ import csv
 import dataclasses
 import errno
 import itertools
+import os
+import signal
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -26,7 +28,17 @@ from a3c_runtime.snapshots import saved_state
 from a3c_tools import batched, sweep
 from a3c_tools.batched import BatchedA3C, BatchedRun, probe, resumable_checkpoint, train_batched
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
-from conftest import ROOT, load_script, read_evaluations, run_main, shared_for, tiny_args
+from conftest import (
+    FORK,
+    ROOT,
+    load_script,
+    read_checkpoint,
+    read_evaluations,
+    rewrite_checkpoint,
+    run_main,
+    shared_for,
+    tiny_args,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -308,30 +320,33 @@ FF = str(ROOT / "agents" / "a3c_ff.py")
 TINY_RUN = ["--eval-interval", "30", "--eval-episodes", "3", "--t-max", "5"]
 
 
+def batched_sweep_argv(out, *extra, runs: int = 2, steps: int = 60) -> list[str]:
+    return [
+        FF,
+        "--out",
+        str(out),
+        "--runs",
+        str(runs),
+        "--total-timesteps",
+        str(steps),
+        "--backend",
+        "batched",
+        "--sample",
+        "learning-rate=loguniform:1e-4:1e-2",
+        *extra,
+    ]
+
+
 def batched_sweep(out, *extra, runs: int = 2, steps: int = 60):
-    return run_main(
-        sweep.main,
-        [
-            FF,
-            "--out",
-            str(out),
-            "--runs",
-            str(runs),
-            "--total-timesteps",
-            str(steps),
-            "--backend",
-            "batched",
-            "--sample",
-            "learning-rate=loguniform:1e-4:1e-2",
-            *extra,
-        ],
-    )
+    return run_main(sweep.main, batched_sweep_argv(out, *extra, runs=runs, steps=steps))
 
 
 @pytest.mark.parametrize(
     ("extra", "says"),
     [
         (["--", "--num-workers", "2"], "cannot batch --num-workers 2"),
+        # K = 4 envs per worker would run as K = 1 (issue 103, 5a)
+        (["--", "--envs-per-worker", "4"], "cannot batch --envs-per-worker 4: it needs 1"),
         (["--", "--optimizer", "adam"], "cannot batch --optimizer adam"),
         (["--", "--precision", "bf16"], "cannot batch --precision bf16"),
         (["--sample", "activation=choice:relu,elu"], "differ in --activation"),
@@ -426,7 +441,8 @@ def test_a_batched_sweep_writes_what_the_process_backend_writes(tmp_path):
         network = module.AGENT.build_network(3, args)
         scores = evaluate_network(network, make_eval_envs(module.AGENT, args, None), 0, args)
         assert float(rows[0]["mean_return"]) == np.mean(scores["scores"])
-        assert (run_dir / "stdout.log").read_text().startswith("done: final eval")
+        # (after the progress lines of a run that lasted more than --log-interval seconds)
+        assert (run_dir / "stdout.log").read_text().splitlines()[-1].startswith("done: final eval")
 
 
 @pytest.mark.parametrize(
@@ -462,9 +478,9 @@ def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path, name, f
     assert [o["outcome"] for o in whole] == ["done", "done"]
     asked = []
 
-    def after_4_updates() -> bool:
+    def after_4_updates() -> str | None:
         asked.append(True)
-        return len(asked) > 4
+        return "SIGINT" if len(asked) > 4 else None
 
     stopped = train_batched(module, runs(tmp_path / "cut"), should_stop=after_4_updates)
     assert [o["outcome"] for o in stopped] == ["stopped by SIGINT", "stopped by SIGINT"]
@@ -608,6 +624,239 @@ def test_a_full_disk_stops_the_batch_with_its_checkpoints_whole(tmp_path, monkey
     assert "resuming at step 15" in result.stdout
     for run in ("run-0000", "run-0001"):
         assert [int(r["global_step"]) for r in read_evaluations(out / "runs" / run)] == [0, 15, 30]
+
+
+# --- Issue 101: the run lock, RunLog's scalars, the stopping signal, cuDNN, the lockstep -------
+
+
+def hold_run_folder(path, ready, release) -> None:
+    """Another process's hold on a run folder, as a run resumed by hand there holds it."""
+    from a3c_runtime.run_folder import RunFolder
+
+    folder = RunFolder(path)
+    ready.set()
+    release.wait(60)
+    folder.close()
+
+
+def stop_after(updates: int):
+    """A should_stop that stops a batch after `updates` updates, as Ctrl-C stops it."""
+    asked = []
+
+    def should_stop() -> str | None:
+        asked.append(True)
+        return "SIGINT" if len(asked) > updates else None
+
+    return should_stop
+
+
+def tiny_runs(module, folder: Path, **flags) -> list:
+    """The two runs of RUN_FLAGS, 30 steps in rollouts of 5, evaluated every 15, in folder."""
+    flags = {"total_timesteps": 30, "t_max": 5, "eval_interval": 15, "eval_episodes": 2, **flags}
+    folders = [str(folder / f"run-{i}") for i in range(len(RUN_FLAGS))]
+    return [
+        BatchedRun(tiny_args(module, seed=seed, learning_rate=lr, run_dir=run_dir, **flags))
+        for (seed, lr), run_dir in zip(RUN_FLAGS, folders, strict=True)
+    ]
+
+
+def read_table(out: Path) -> list[dict]:
+    with open(out / "results.csv") as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_batched_sweep_leaves_a_run_in_use_elsewhere_alone_and_runs_it_once_free(tmp_path):
+    """A run of the sweep being resumed by hand (its folder locked by the runtime's lock in
+    another process): the batched sweep neither reads nor touches its folder, records no row
+    for it, says "in use" and exits 3, as the process backend's sweep does; started again once
+    it is free, it runs it."""
+    out = tmp_path / "out"
+    busy = out / "runs" / "run-0001"
+    busy.mkdir(parents=True)
+    (busy / "stdout.log").write_text("run run-0001 -> resumed by hand\n")
+    (busy / "evaluations.csv").write_text(
+        "global_step,wall_time_s,mean_return,std_return,episodes\n0,1.0,0.0,0.0,3\n"
+    )
+    before = {path.name: path.read_bytes() for path in busy.iterdir()}
+    ready, release = FORK.Event(), FORK.Event()
+    holder = FORK.Process(target=hold_run_folder, args=(busy, ready, release))
+    holder.start()
+    try:
+        assert ready.wait(30)
+        result = batched_sweep(out, "--", *TINY_RUN)
+        assert result.returncode == sweep.IN_USE_EXIT == 3, result.stdout + result.stderr
+        assert f"run-0001 in use: {busy} is held by process {holder.pid}" in result.stdout
+        assert "not done: 1 ok, 0 failed, 1 in use elsewhere (run-0001)" in result.stdout
+        assert [(r["run_id"], r["status"]) for r in read_table(out)] == [("run-0000", "ok")]
+        after = {path.name: path.read_bytes() for path in busy.iterdir()}
+        assert after.pop("run.lock") == f"{holder.pid}\n".encode()  # the holder's
+        assert after == before  # untouched: no file removed, changed or added
+    finally:
+        release.set()
+        holder.join(30)
+    result = batched_sweep(out, "--", *TINY_RUN)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert [(r["run_id"], r["status"]) for r in read_table(out)] == [
+        ("run-0000", "ok"),
+        ("run-0001", "ok"),
+    ]
+    assert [int(r["global_step"]) for r in read_evaluations(busy)] == [0, 30, 60]
+    assert not (busy / "run.lock").exists()  # given back
+
+
+def test_each_batched_run_writes_the_runtimes_tensorboard_scalars(tmp_path):
+    """Each run's folder gets what the runtime's RunLog writes for a run: TensorBoard's eval/
+    scalars at the evaluations.csv rows' steps and values, the charts/ and losses/ scalars at
+    each progress mark (here every update) with the run's own learning rate, and the progress
+    lines in its stdout.log, before its closing line."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    module = load_script("a3c_ff")
+    runs = tiny_runs(module, tmp_path, log_interval=1e-9)
+    assert [o["outcome"] for o in train_batched(module, runs)] == ["done", "done"]
+    for run in runs:
+        run_dir = Path(run.args.run_dir)
+        events = EventAccumulator(str(run_dir))
+        events.Reload()
+        tags = set(events.Tags()["scalars"])
+        expected = {"eval/mean_return", "eval/std_return", "charts/SPS", "charts/learning_rate",
+                    "charts/episodic_return", "charts/episodic_length", "losses/policy_loss",
+                    "losses/value_loss", "losses/entropy", "losses/grad_norm"}  # fmt: skip
+        assert expected <= tags, tags
+        rows = read_evaluations(run_dir)
+        evals = [(e.step, e.value) for e in events.Scalars("eval/mean_return")]
+        assert evals == [(int(r["global_step"]), pytest.approx(float(r["mean_return"])))
+                         for r in rows]  # fmt: skip
+        rates = events.Scalars("charts/learning_rate")
+        assert [e.step for e in rates] == list(range(5, 31, 5))
+        for e in rates:
+            assert e.value == pytest.approx(run.args.learning_rate * (1 - e.step / 30))
+        lengths = [e.value for e in events.Scalars("charts/episodic_length")]
+        assert lengths == [15.0, 15.0]  # Catch's episodes, ended at steps 15 and 30
+        lines = (run_dir / "stdout.log").read_text().splitlines()
+        assert lines[0].startswith("step 5/30 (16.7%) | SPS") and len(lines) == 7
+        assert lines[-1].startswith("done: final eval")
+
+
+def test_a_batch_stopped_by_sigterm_names_it_and_resumes_from_its_checkpoints(
+    tmp_path, monkeypatch
+):
+    """SIGTERM to a batched sweep after two updates: each run's stdout.log says "stopped by
+    SIGTERM" (not SIGINT), the sweep says the stopped runs resume from their checkpoints, and
+    started again it resumes them from step 10."""
+    update, updates = BatchedA3C.update, []
+
+    def update_then_sigterm(self):
+        handler = signal.getsignal(signal.SIGTERM)
+        if isinstance(getattr(handler, "__self__", None), sweep.StopRequests):  # (not the probe)
+            updates.append(self.step_count)
+            if len(updates) == 2:  # the sweep's handler runs before this update returns
+                os.kill(os.getpid(), signal.SIGTERM)
+        return update(self)
+
+    monkeypatch.setattr(BatchedA3C, "update", update_then_sigterm)
+    out = tmp_path / "out"
+    result = batched_sweep(out, "--", *TINY_RUN)
+    assert result.returncode == 130, result.stdout + result.stderr
+    assert ("SIGTERM: stopping the running runs (started again, the sweep resumes them from "
+            "their checkpoints)") in result.stdout  # fmt: skip
+    assert "rerun" not in result.stdout
+    module = load_script("a3c_ff")
+    for run in ("run-0000", "run-0001"):
+        log = (out / "runs" / run / "stdout.log").read_text().splitlines()
+        assert log[-1].startswith("stopped by SIGTERM: last eval"), log
+        checkpoint = load_checkpoint(str(out / "runs" / run / "checkpoint.pt"), module.AGENT)
+        assert checkpoint.global_step == 10
+    monkeypatch.setattr(BatchedA3C, "update", update)
+    result = batched_sweep(out, "--", *TINY_RUN)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "batched: 2 runs on cpu, resuming at step 10" in result.stdout
+    assert [r["status"] for r in read_table(out)] == ["ok", "ok"]
+
+
+def test_set_up_device_cuda_makes_cudnn_deterministic():
+    """On CUDA: no TF32, and cuDNN's deterministic algorithms, none chosen by benchmarking
+    (the flags only: they are set the same on a machine without a GPU)."""
+    cudnn, matmul = torch.backends.cudnn, torch.backends.cuda.matmul
+    saved = (cudnn.deterministic, cudnn.benchmark, cudnn.allow_tf32, matmul.allow_tf32)
+    try:
+        cudnn.deterministic, cudnn.benchmark = False, True
+        cudnn.allow_tf32 = matmul.allow_tf32 = True
+        batched.set_up_device("cuda")
+        assert cudnn.deterministic and not cudnn.benchmark
+        assert not cudnn.allow_tf32 and not matmul.allow_tf32
+    finally:
+        cudnn.deterministic, cudnn.benchmark, cudnn.allow_tf32, matmul.allow_tf32 = saved
+
+
+def test_runs_at_one_step_but_other_steps_of_their_episodes_are_batched_apart(tmp_path):
+    """A run resumed by hand with two workers for a while, then one, holds a checkpoint whose
+    global step counts the other worker's steps: at step 20 its game is 10 steps into an
+    episode, another run's at step 20 is 5 steps in. Their episodes would end at different
+    steps of one batch (a RuntimeError mid-run); the sweep batches them apart, and each run
+    finishes. A batch of such runs built by hand is refused before anything runs."""
+    out = tmp_path / "out"
+    sweep_args, fixed = sweep.parse_args(batched_sweep_argv(out, "--", *TINY_RUN))
+    planned = sweep.plan_runs(sweep.configuration(sweep_args, fixed), 2)
+    module = load_script("a3c_ff")
+    runs = []
+    for run, updates in zip(planned, (4, 2), strict=True):
+        run_dir = out / "runs" / run.run_id
+        args = batched.resolve_run_args(batched.planned_args(module, run.command(FF, run_dir)[1:]))
+        train_batched(module, [BatchedRun(args)], should_stop=stop_after(updates))
+        runs.append(args)
+    path = out / "runs" / "run-0001" / "checkpoint.pt"
+    raw = read_checkpoint(path)
+    assert raw["global_step"] == 10
+    raw["global_step"] = 20  # (and the other worker's 10 steps)
+    rewrite_checkpoint(path, raw)
+    resumed = [BatchedRun(args, resumable_checkpoint(module.AGENT, Path(args.run_dir)))
+               for args in runs]  # fmt: skip
+    assert [run.checkpoint.global_step for run in resumed] == [20, 20]
+    with pytest.raises(ValueError, match=r"same step of their episodes .* rows \[9, 14\]"):
+        BatchedA3C(module, resumed, "cpu")
+    result = batched_sweep(out, "--", *TINY_RUN)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.count("batched: 1 runs on cpu, resuming at step 20") == 2
+    assert [(r["status"], r["final_step"]) for r in read_table(out)] == [("ok", "60")] * 2
+
+
+def test_runs_resumed_in_one_batch_keep_their_own_wall_times(tmp_path):
+    """Two runs resumed in one batch from checkpoints with their own wall times (1,000 s and
+    5,000 s): each run's clock goes on from its own, in its evaluations.csv rows, its
+    checkpoint and its outcome (issue 103, 5b)."""
+    module = load_script("a3c_ff")
+    train_batched(module, tiny_runs(module, tmp_path), should_stop=stop_after(2))
+    resumed, offsets = tiny_runs(module, tmp_path), (1000.0, 5000.0)
+    for run, offset in zip(resumed, offsets, strict=True):
+        checkpoint = resumable_checkpoint(module.AGENT, Path(run.args.run_dir))
+        assert checkpoint.global_step == 10
+        run.checkpoint = dataclasses.replace(checkpoint, wall_time=offset)
+    outcomes = train_batched(module, resumed)
+    for run, offset, outcome in zip(resumed, offsets, outcomes, strict=True):
+        run_dir = Path(run.args.run_dir)
+        own_clock = pytest.approx(offset, abs=500)  # (the test's seconds on top)
+        assert outcome["outcome"] == "done" and outcome["wall_time_s"] == own_clock
+        rows = [r for r in read_evaluations(run_dir) if int(r["global_step"]) > 10]
+        assert [float(r["wall_time_s"]) for r in rows] == [own_clock, own_clock]
+        assert load_checkpoint(str(run_dir / "checkpoint.pt"), module.AGENT).wall_time == own_clock
+
+
+def test_a_batch_may_hold_its_files_open_past_a_low_soft_limit():
+    """allow_open_files raises the soft limit of open files to what a batch holds (never above
+    the hard limit, never lowering it)."""
+    resource = pytest.importorskip("resource")
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    low = 256
+    expected = 600 if hard == resource.RLIM_INFINITY else min(600, hard)
+    try:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (low, hard))
+        batched.allow_open_files(600)
+        assert resource.getrlimit(resource.RLIMIT_NOFILE) == (expected, hard)
+        batched.allow_open_files(100)
+        assert resource.getrlimit(resource.RLIMIT_NOFILE) == (expected, hard)
+    finally:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
 
 
 # --- The batched pieces against the runtime's and the script's, run by run ---------------------

@@ -10,7 +10,7 @@ import os
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 import torch
@@ -92,13 +92,23 @@ class RunLog:
     that fails raises WriteFailed naming the file; a failed row of evaluations.csv is taken back,
     so the file stays whole."""
 
-    def __init__(self, run_dir: Path, args: Any, wall_offset: float, resumed_step: int = 0):
+    def __init__(
+        self,
+        run_dir: Path,
+        args: Any,
+        wall_offset: float,
+        resumed_step: int = 0,
+        console: TextIO | None = None,
+    ):
         """resumed_step: a resumed run's checkpoint step. What the run logged after it (it ended
         without a checkpoint at its last step: a killed process, a failed write) is dropped, so
-        the resumed run's rows and scalars carry on from the checkpoint without repeats."""
+        the resumed run's rows and scalars carry on from the checkpoint without repeats.
+        console: where the progress lines go (stdout by default; the sweep's batched backend,
+        whose many runs share one stdout, gives each run its stdout.log)."""
         from torch.utils.tensorboard import SummaryWriter
 
         self.args, self.start, self.wall_offset = args, time.time(), wall_offset
+        self.console = console
         self.csv_path = run_dir / "evaluations.csv"
         self.events_path = run_dir / "events.out.tfevents.*"
         if resumed_step and self.csv_path.exists():
@@ -129,13 +139,17 @@ class RunLog:
     @staticmethod
     def quiet_writer_thread() -> None:
         """TensorBoard's writer thread re-raises a failed write, which Python would print as a
-        traceback; the main thread reports it as one line (WriteFailed) at the next call."""
+        traceback; the main thread reports it as one line (WriteFailed) at the next call.
+        Installed once per process: a batch of many runs' logs must not chain a hook each."""
         default = threading.excepthook
+        if getattr(default, "quiets_writer_threads", False):
+            return
 
         def hook(info: threading.ExceptHookArgs) -> None:
             if not issubclass(info.exc_type, OSError):
                 default(info)
 
+        hook.quiets_writer_threads = True
         threading.excepthook = hook
 
     def append_row(self, values: Any) -> None:
@@ -205,6 +219,7 @@ class RunLog:
             f"SPS {sps:,.0f} | return {self.recent_return:.3f} | eval "
             + (f"{last['mean_return']:.3f} @ {last['global_step']:,}" if last else "-")
             + f" | ETA {format_seconds(max(0.0, eta))}",
+            file=self.console,
             flush=True,
         )
 

@@ -14,11 +14,24 @@ the run's episode seeds). The N networks are the script's `ActorCritic`, their p
 gradients by vmap(grad(loss)). tests/test_batched.py checks that run i takes the script's actions
 with its parameters to float tolerance. Only the order of floating-point sums differs.
 
-Each run's folder gets what the process backend writes: evaluations.csv (the same rows), a
-sealed checkpoint.pt in the safe format at each --checkpoint-interval and at the end (with the
-worker's generator, env and frames, so the script's own --resume continues it exactly),
-stdout.log with the run's closing line; the sweep writes results.csv. Stopped (Ctrl-C, SIGTERM),
-every run is checkpointed at its last update, and the next start of the sweep resumes them.
+Each run's folder gets what the process backend writes, written by the runtime's own code: its
+lock (a3c_runtime.run_folder, taken before anything in the folder is read or changed, so a run
+in use elsewhere, resumed by hand, is left alone and the sweep says "in use", as it does on the
+process backend), evaluations.csv (the same rows) and TensorBoard's scalars (the eval/, charts/
+and losses/ ones, every --log-interval seconds) through a3c_runtime.run_log.RunLog, a sealed
+checkpoint.pt in the safe format at each --checkpoint-interval and at the end (with the worker's
+generator, env and frames, so the script's own --resume continues it exactly), stdout.log with
+the run's progress lines and closing line; the sweep writes results.csv. Stopped (Ctrl-C,
+SIGTERM), every run is checkpointed at its last update, its closing line naming the signal, and
+the next start of the sweep resumes them from those checkpoints. On CUDA the batch computes in
+fp32 without TF32, with cuDNN's deterministic algorithms (`set_up_device`).
+
+The runs of a batch act in lockstep: their rollouts end where their episodes end, together.
+Every game of Catch lasts 15 steps, so runs at one step of their episodes stay together;
+`run_batched` batches the runs that resume from the same global step with their balls on the
+same row (`episode_row`: runs at one global step may be at different steps of their episodes,
+one resumed by hand with more workers for a while), and a batch built otherwise is refused
+when it is built.
 
 What it batches: the scripts of BATCHED_SCRIPTS (FF, LSTM, LWS, SS, WW, LPQ, GLPQ) on Catch-v0
 with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS. An
@@ -31,11 +44,11 @@ update of the network under vmap).
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
 import functools
 import os
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -49,6 +62,8 @@ import torch
 import torch.nn.functional as F
 from a3c_runtime import (
     Checkpoint,
+    RunLog,
+    Shared,
     UsageError,
     WriteFailed,
     annealed_lr,
@@ -58,11 +73,13 @@ from a3c_runtime import (
     seed_everything,
 )
 from a3c_runtime.evaluation import EVALUATION_STREAM
-from a3c_runtime.run_log import CSV_COLUMNS, drop_rows_after, logged_steps
+from a3c_runtime.run_folder import LOCK_FILE, RunFolder
+from a3c_runtime.run_log import logged_steps
 from a3c_runtime.snapshots import arrays_of, next_mark, saved_state
 from torch.func import functional_call, grad, stack_module_state, vmap
 
 from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
+from catch_env.catch import BALL_START_ROW
 
 # the scripts whose worker is a3c_ff.py's (GLPQ's adds its tau schedule and loss correction,
 # LSTM's its recurrent state) and whose network vmaps
@@ -93,6 +110,8 @@ SCRIPT_REQUIRED = {
     },
 }
 UNIFORM_BLOCK = 256  # action uniforms drawn per run at a time
+STAT_INDEX = {name: i for i, name in enumerate(Shared.STATS)}  # a worker's running totals
+FILES_PER_RUN = 4  # held open by a batch: the folder's lock, evaluations.csv, events, stdout.log
 
 
 def batch_problem(script: str, runs_args: list[Any]) -> str | None:
@@ -231,10 +250,13 @@ class ActionUniforms:
 # ------------------------------------------------------------------------------------------------
 @dataclass
 class BatchedRun:
-    """One run of a batch: its resolved Args (run_dir set) and what it resumes from."""
+    """One run of a batch: its resolved Args (run_dir set), what it resumes from, and its run
+    folder, locked (a3c_runtime.run_folder) by the caller that read the checkpoint in it; None:
+    train_batched locks it."""
 
     args: Any
     checkpoint: Checkpoint | None = None
+    folder: RunFolder | None = None
 
 
 def resumable_checkpoint(agent: Any, run_dir: Path) -> Checkpoint | None:
@@ -247,36 +269,44 @@ def resumable_checkpoint(agent: Any, run_dir: Path) -> Checkpoint | None:
     return checkpoint if checkpoint.workers.get(0) else None
 
 
-class RunFiles:
-    """A run folder's evaluations.csv (RunLog's rows), checkpoint and stdout.log."""
+def episode_row(checkpoint: Checkpoint | None) -> int:
+    """The row of the ball in the game a run resumes (a new run's: the start row). A game of
+    Catch ends when its ball, falling a row per step, reaches the paddle's row, so runs whose
+    balls are on one row end their episodes at the same steps for as long as they run: the
+    lockstep of a batch. Runs at one global step may differ: a run resumed by hand with more
+    workers for a while counts their steps too."""
+    if checkpoint is None:
+        return BALL_START_ROW
+    env_state = arrays_of(checkpoint.workers[0][1]["env"])  # as BatchedA3C.restore reads it
+    return int(np.asarray(env_state["env"]["ball_row"])[0])
 
-    def __init__(self, args: Any, start_step: int, wall_offset: float):
-        self.args, self.dir = args, Path(args.run_dir)
-        self.dir.mkdir(parents=True, exist_ok=True)
-        self.csv = self.dir / "evaluations.csv"
-        if start_step and self.csv.exists():
-            drop_rows_after(self.csv, start_step)
-        if not self.csv.exists() or self.csv.stat().st_size == 0:
-            self.csv.write_text(",".join(CSV_COLUMNS) + "\n")
-        self.logged = logged_steps(self.csv, 2**62)
-        self.wall_offset = wall_offset
-        self.last_eval: tuple[int, float] | None = None
 
-    def evaluation(self, result: dict, wall_time: float) -> None:
-        scores = np.asarray(result["scores"])
-        row = [result["global_step"], round(self.wall_offset + wall_time, 2),
-               float(scores.mean()), float(scores.std()), len(scores)]  # fmt: skip
-        line = (",".join(str(v) for v in row) + "\n").encode()
-        size = self.csv.stat().st_size
-        try:  # the row whole or not at all, as RunLog writes it
-            with open(self.csv, "ab") as f:
-                f.write(line)
-        except OSError as e:
-            with contextlib.suppress(OSError):
-                os.truncate(self.csv, size)
-            raise WriteFailed(self.csv, e) from e
-        self.logged.add(result["global_step"])
-        self.last_eval = (result["global_step"], float(scores.mean()))
+def clear_run_folder(folder: RunFolder) -> None:
+    """Remove what a partial run left in its locked folder, all but the lock file (removing
+    that would let another process take the folder while this one trains there)."""
+    for path in folder.path.iterdir():
+        if path.name == LOCK_FILE:
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
+def allow_open_files(count: int) -> None:
+    """Raise this process's soft limit of open files to `count` where it is lower (up to the
+    hard limit): a batch holds FILES_PER_RUN files per run open, past the common soft limit of
+    1,024 at a few hundred runs."""
+    try:
+        import resource
+    except ImportError:  # (not POSIX)
+        return
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY or soft >= count:
+        return
+    wanted = count if hard == resource.RLIM_INFINITY else min(count, hard)
+    if wanted > soft:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (wanted, hard))
 
 
 class BatchedA3C:
@@ -317,8 +347,14 @@ class BatchedA3C:
         self.wall_offsets = [0.0] * n
         if runs[0].checkpoint is not None:
             self.restore([run.checkpoint for run in runs])
+        rows = set(self.envs.ball_row.tolist())
+        if len(rows) > 1:  # (run_batched batches runs by their ball's row)
+            raise ValueError(f"a batch's runs must be at the same step of their episodes (their "
+                             f"balls on one row); these are on rows {sorted(rows)}")  # fmt: skip
         self.uniforms = ActionUniforms(self.rngs, self.device)
         self.eval_envs: TorchCatchVectorEnv | None = None
+        # each run's running totals of Shared.STATS (RunLog's scalars), added to on the device
+        self.stats = torch.zeros((n, len(Shared.STATS)), dtype=torch.float64, device=self.device)
 
     def restore(self, checkpoints: list[Checkpoint]) -> None:
         """Every run from its checkpoint (all at the same step): theta, the RMSprop statistics,
@@ -404,10 +440,13 @@ class BatchedA3C:
                 obs, rewards[t], _, ended = envs.step(actions[t])
                 frames[t + 1] = obs
                 if ended.any():
-                    # Catch's episodes all last 15 steps: the runs' episodes end together
+                    # the runs' balls started on one row (checked in __init__) and fall a row per
+                    # step: their episodes end together
                     if not ended.all():
                         raise RuntimeError("the runs' episodes ended at different steps")
                     dones[t] = True
+                    self.add_stats(episodes=1.0, return_sum=envs.final_returns,
+                                   length_sum=envs.final_lengths)  # fmt: skip
                     # LSTM: the next episode starts from the zero state
                     self.state = tuple(torch.zeros_like(s) for s in self.state)
                     break
@@ -432,11 +471,19 @@ class BatchedA3C:
             rollout_state,
         )
         self.last_actions = actions[:n].T  # (N, n), for the equivalence tests
-        clip_stacked(grads, a.grad_clip_mode, a.grad_clip)
+        grad_norm = clip_stacked(grads, a.grad_clip_mode, a.grad_clip)
         lrs = [annealed_lr(args, self.step_count) for args in self.args]
         self.optimizer.step(grads, torch.tensor(lrs, dtype=torch.float32, device=self.device))
         self.step_count += n
+        self.add_stats(updates=1.0, policy_loss=policy_loss, value_loss=value_loss,
+                       entropy=entropy, grad_norm=grad_norm)  # fmt: skip
         return n
+
+    def add_stats(self, **totals: float | torch.Tensor) -> None:
+        """Add to every run's running totals, by name, as a worker adds to its WorkerStats: a
+        number for all runs or a tensor (N,) of each run's."""
+        for name, value in totals.items():
+            self.stats[:, STAT_INDEX[name]] += value
 
     # -- evaluations and checkpoints, per run ----------------------------------------------
     def network(self, i: int) -> dict[str, torch.Tensor]:
@@ -488,7 +535,7 @@ class BatchedA3C:
             parts += (tuple(s[i].cpu().clone() for s in self.state),)
         return parts
 
-    def checkpoint(self, i: int, files: RunFiles, wall_time: float) -> None:
+    def checkpoint(self, i: int, run_dir: Path, wall_time: float) -> None:
         snapshot = {
             "model": self.network(i),
             "optimizer": {"square_avg": [s[i].cpu().clone() for s in self.optimizer.square_avg]},
@@ -497,8 +544,8 @@ class BatchedA3C:
             "pending_evaluations": [],
         }
         shared = SimpleNamespace(model=self.cpu_model, global_step=lambda: self.step_count)
-        save_checkpoint(files.dir / "checkpoint.pt", shared, self.args[i],
-                        files.wall_offset + wall_time, self.agent.script, snapshot)  # fmt: skip
+        save_checkpoint(run_dir / "checkpoint.pt", shared, self.args[i], wall_time,
+                        self.agent.script, snapshot)  # fmt: skip
 
 
 def set_up_device(device: str) -> None:
@@ -507,6 +554,10 @@ def set_up_device(device: str) -> None:
     if device == "cuda":  # fp32 as the scripts compute it: no TF32 convolutions or matmuls
         torch.backends.cudnn.allow_tf32 = False
         torch.backends.cuda.matmul.allow_tf32 = False
+        # and the same run twice the same: cuDNN's deterministic algorithms, none picked by
+        # timing (benchmark mode may pick another, nondeterministic one in each process)
+        torch.backends.cudnn.deterministic = True
+        torch.backends.cudnn.benchmark = False
     else:  # one core, as one process-backend run uses (and no oversubscribed threads)
         torch.set_num_threads(1)
 
@@ -515,36 +566,84 @@ def train_batched(
     module: ModuleType,
     runs: list[BatchedRun],
     device: str = "cpu",
-    should_stop: Callable[[], bool] = lambda: False,
+    should_stop: Callable[[], str | None] = lambda: None,
     log_interval: float = 30.0,
 ) -> list[dict]:
-    """Train the runs as one batch to their --total-timesteps, writing each run's folder;
-    returns each run's outcome (for the sweep's table): "done" or "stopped" and its wall time.
-    A stop (should_stop() true) checkpoints every run at its last update."""
+    """Train the runs as one batch to their --total-timesteps, writing each run's folder
+    through the runtime's RunLog (evaluations.csv, TensorBoard scalars, progress lines in
+    stdout.log) with the folder locked; returns each run's outcome (for the sweep's table):
+    "done" or "stopped by <signal>" and its wall time. should_stop() names the signal that
+    stops the batch ("SIGINT", "SIGTERM"), or None: a stop checkpoints every run at its last
+    update. log_interval: seconds between the batch's console lines."""
     set_up_device(device)
-    batch = BatchedA3C(module, runs, device)
-    start, start_step = time.time(), batch.step_count
-    files = [RunFiles(run.args, start_step, batch.wall_offsets[i]) for i, run in enumerate(runs)]
-    a = batch.args[0]
+    batch = BatchedA3C(module, runs, device)  # (refuses runs it cannot batch: nothing written)
+    start_step = batch.step_count
+    allow_open_files(FILES_PER_RUN * len(runs) + 256)
+    folders, locked, logs, consoles = [], [], [], []
+    try:
+        for run in runs:  # the runtime's lock, taken here where the caller took none
+            folder = run.folder
+            if folder is None:
+                folder = RunFolder(Path(run.args.run_dir))
+                locked.append(folder)
+            folders.append(folder)
+        for i, (run, folder) in enumerate(zip(runs, folders, strict=True)):
+            consoles.append(open(folder.path / "stdout.log", "a"))  # noqa: SIM115 (closed below)
+            logs.append(RunLog(folder.path, run.args, batch.wall_offsets[i],
+                               resumed_step=start_step, console=consoles[-1]))  # fmt: skip
+        outcomes = train_logged(batch, [f.path for f in folders], logs, should_stop, log_interval)
+        for log in logs:
+            log.close()
+        for console, outcome in zip(consoles, outcomes, strict=True):
+            console.write(outcome["stdout"] + "\n")
+        return outcomes
+    except BaseException:
+        for log in logs:
+            log.close(quietly=True)
+        raise
+    finally:
+        for console in consoles:
+            console.close()
+        for folder in locked:
+            folder.close()
+
+
+def train_logged(
+    batch: BatchedA3C,
+    run_dirs: list[Path],
+    logs: list[RunLog],
+    should_stop: Callable[[], str | None],
+    log_interval: float,
+) -> list[dict]:
+    """train_batched's loop, each run's folder locked and its RunLog open."""
+    a, start_step = batch.args[0], batch.step_count
     eval_mark, checkpoint_mark = (
         next_mark(start_step, a.eval_interval),
         next_mark(start_step, a.checkpoint_interval),
     )
+    # (a resumed run's evaluation of its checkpoint's step may be logged already)
+    logged = [logged_steps(log.csv_path, start_step) for log in logs]
 
     def evaluate_all() -> None:
-        if all(batch.step_count in run_files.logged for run_files in files):
-            return  # (a resumed run's evaluation of this step was logged before it stopped)
-        for run_files, result in zip(files, batch.evaluate(), strict=True):
-            if batch.step_count not in run_files.logged:
-                run_files.evaluation(result, time.time() - start)
+        if all(batch.step_count in steps for steps in logged):
+            return
+        for log, steps, result in zip(logs, logged, batch.evaluate(), strict=True):
+            if batch.step_count not in steps:
+                log.evaluation(result)
+                steps.add(batch.step_count)
+
+    def checkpoint_all() -> None:
+        for i, (run_dir, log) in enumerate(zip(run_dirs, logs, strict=True)):
+            batch.checkpoint(i, run_dir, log.wall_time())
 
     if start_step == 0:
         evaluate_all()  # the untrained network's, as every run's first row
-    last_log, last_step = time.time(), start_step
-    stopped = False
+    last_log = last_progress = (time.time(), start_step)
+    stats = batch.stats.to("cpu", copy=True)  # (a copy on the CPU too: the totals grow)
+    stopped_by = None
     while batch.step_count < batch.total:
-        if should_stop():
-            stopped = True
+        stopped_by = should_stop()
+        if stopped_by:
             break
         batch.update()
         step = batch.step_count
@@ -553,30 +652,33 @@ def train_batched(
                 evaluate_all()
             eval_mark = next_mark(step, a.eval_interval)
         if step >= checkpoint_mark:
-            for i, run_files in enumerate(files):
-                batch.checkpoint(i, run_files, time.time() - start)
+            checkpoint_all()
             checkpoint_mark = next_mark(step, a.checkpoint_interval)
-        if time.time() - last_log >= log_interval:
-            sps = (step - last_step) * len(runs) / (time.time() - last_log)
-            print(f"batched: {len(runs)} runs at step {step:,}/{batch.total:,} | "
+        now = time.time()
+        if now - last_progress[0] >= a.log_interval:  # each run's scalars, as a run logs them
+            sps = (step - last_progress[1]) / (now - last_progress[0])
+            new_stats = batch.stats.to("cpu", copy=True)
+            for i, log in enumerate(logs):
+                lr = annealed_lr(batch.args[i], step)
+                log.progress(step, sps, lr, new_stats[i] - stats[i])
+            last_progress, stats = (now, step), new_stats
+        if now - last_log[0] >= log_interval:
+            sps = (step - last_log[1]) * len(logs) / (now - last_log[0])
+            print(f"batched: {len(logs)} runs at step {step:,}/{batch.total:,} | "
                   f"{sps:,.0f} run-steps/s", flush=True)  # fmt: skip
-            last_log, last_step = time.time(), step
-    for i, run_files in enumerate(files):  # every run's last checkpoint, as a run's last
-        batch.checkpoint(i, run_files, time.time() - start)
-    if not stopped:
+            last_log = (now, step)
+    checkpoint_all()  # every run's last checkpoint, as a run's last
+    if not stopped_by:
         evaluate_all()
     outcomes = []
-    wall = time.time() - start
-    for run_files in files:
-        step, score = run_files.last_eval or (batch.step_count, float("nan"))
-        label = "last eval" if stopped else "final eval"
-        outcome = "stopped by SIGINT" if stopped else "done"
+    for run_dir, log in zip(run_dirs, logs, strict=True):
+        last = log.last_eval or {"global_step": batch.step_count, "mean_return": float("nan")}
+        step, score = last["global_step"], last["mean_return"]  # (a resumed run's last row too)
+        label = "last eval" if stopped_by else "final eval"
+        outcome = f"stopped by {stopped_by}" if stopped_by else "done"
         line = (f"{outcome}: {label} {score:.3f} at step {step:,} | batched with "
-                f"{len(runs)} runs | {batch.step_count:,} steps | {run_files.dir}")  # fmt: skip
-        with open(run_files.dir / "stdout.log", "a") as f:
-            f.write(line + "\n")
-        outcomes.append({"outcome": outcome, "wall_time_s": run_files.wall_offset + wall,
-                         "stdout": line})  # fmt: skip
+                f"{len(logs)} runs | {batch.step_count:,} steps | {run_dir}")  # fmt: skip
+        outcomes.append({"outcome": outcome, "wall_time_s": log.wall_time(), "stdout": line})
     return outcomes
 
 
@@ -647,43 +749,69 @@ def run_batched(
     todo: list[Any],
     out: Path,
     record: Callable[[Any, dict], None],
-    should_stop: Callable[[], bool],
+    should_stop: Callable[[], str | None],
     device: str,
 ) -> None:
-    """The sweep's runs `todo` (a3c_tools.sweep.Run) as batches on `device`: the runs that
-    resume from the same step (their checkpoints'; 0 for new ones) are one batch. Each finished
-    run is recorded as the process backend records it; a stopped batch records nothing (its
-    runs resume from their checkpoints on the next start)."""
-    import shutil
-
+    """The sweep's runs `todo` (a3c_tools.sweep.Run) as batches on `device`. Each run's folder
+    is locked first, with the runtime's own lock, as the run itself would lock it: a run in use
+    elsewhere (resumed by hand) is neither read nor touched, and is recorded "in use", as the
+    process backend records it. The runs that resume from the same step (their checkpoints'; 0
+    for new ones), their games at the same step of an episode, are one batch. Each finished run
+    is recorded as the process backend records it; a stopped batch records nothing (its runs
+    resume from their checkpoints on the next start). should_stop() names the signal that stops
+    the sweep, or None."""
     from a3c_tools import load_script
+    from a3c_tools.sweep import IN_USE_TEXT, run_holder
 
     module = load_script(script)
-    groups: dict[int, list[tuple[Any, BatchedRun]]] = {}
-    for run in todo:
-        run_dir = out / "runs" / run.run_id
-        args = resolve_run_args(planned_args(module, run.command(script, run_dir)[1:]))
-        checkpoint = resumable_checkpoint(module.AGENT, run_dir)
-        if checkpoint is None:  # a partial run that wrote no checkpoint starts again
-            shutil.rmtree(run_dir, ignore_errors=True)
-        start = checkpoint.global_step if checkpoint else 0
-        groups.setdefault(start, []).append((run, BatchedRun(args, checkpoint)))
-    for start in sorted(groups):
-        if should_stop():
-            return
-        group = groups[start]
-        where = f"resuming at step {start:,}" if start else "from step 0"
-        print(f"batched: {len(group)} runs on {device}, {where}", flush=True)
-        try:
-            outcomes = train_batched(module, [batch for _, batch in group], device, should_stop)
-        except (WriteFailed, OSError) as e:  # a full disk, say: the checkpoints are whole
-            print(f"error: {e}; each run's last checkpoint survives: start the sweep again to "
-                  "resume them", file=sys.stderr, flush=True)  # fmt: skip
-            raise SystemExit(1) from None
-        for (run, batched), outcome in zip(group, outcomes, strict=True):
-            if outcome["outcome"] != "done":
-                continue  # resumes next time
-            csv_path = Path(batched.args.run_dir) / "evaluations.csv"
-            record(run, {"returncode": 0, "interrupted": False,
-                         "wall_time_s": outcome["wall_time_s"], "stdout_tail": outcome["stdout"],
-                         "stderr_tail": "", "evaluations_csv": csv_path.read_text()})  # fmt: skip
+    allow_open_files(FILES_PER_RUN * len(todo) + 256)
+    groups: dict[tuple[int, int], list[tuple[Any, BatchedRun]]] = {}
+    folders: list[RunFolder] = []
+    try:
+        for run in todo:
+            run_dir = out / "runs" / run.run_id
+            args = resolve_run_args(planned_args(module, run.command(script, run_dir)[1:]))
+            try:  # before anything in the folder is read or changed
+                folder = RunFolder(run_dir)
+            except UsageError as e:
+                if IN_USE_TEXT in str(e):  # resumed by hand, say: left alone, runs next time
+                    holder = run_holder(run_dir) or "?"
+                    result = {"returncode": None, "interrupted": False, "in_use": holder}
+                else:  # (a file in its place, say) failed, as the run itself would fail
+                    result = {"returncode": 2, "interrupted": False, "in_use": None,
+                              "stdout_tail": "", "stderr_tail": f"error: {e}",
+                              "evaluations_csv": None}  # fmt: skip
+                record(run, {**result, "wall_time_s": 0.0})
+                continue
+            folders.append(folder)
+            checkpoint = resumable_checkpoint(module.AGENT, run_dir)
+            if checkpoint is None:  # a partial run that wrote no checkpoint starts again
+                clear_run_folder(folder)
+            start = checkpoint.global_step if checkpoint else 0
+            group = groups.setdefault((start, episode_row(checkpoint)), [])
+            group.append((run, BatchedRun(args, checkpoint, folder)))
+        for key in sorted(groups):
+            if should_stop():
+                return
+            start, group = key[0], groups[key]
+            where = f"resuming at step {start:,}" if start else "from step 0"
+            print(f"batched: {len(group)} runs on {device}, {where}", flush=True)
+            try:
+                outcomes = train_batched(module, [batch for _, batch in group], device, should_stop)
+            except (WriteFailed, OSError) as e:  # a full disk, say: the checkpoints are whole
+                print(f"error: {e}; each run's last checkpoint survives: start the sweep again "
+                      "to resume them", file=sys.stderr, flush=True)  # fmt: skip
+                raise SystemExit(1) from None
+            for (run, batched), outcome in zip(group, outcomes, strict=True):
+                if outcome["outcome"] != "done":
+                    continue  # resumes next time
+                csv_path = Path(batched.args.run_dir) / "evaluations.csv"
+                record(run, {"returncode": 0, "interrupted": False,
+                             "wall_time_s": outcome["wall_time_s"],
+                             "stdout_tail": outcome["stdout"], "stderr_tail": "",
+                             "evaluations_csv": csv_path.read_text()})  # fmt: skip
+            for _, batched in group:  # its part done: free for a run resumed by hand
+                batched.folder.close()
+    finally:
+        for folder in folders:
+            folder.close()

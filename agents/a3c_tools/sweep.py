@@ -79,7 +79,8 @@ before anything runs, naming the folder to move or remove. --runs, the backend a
 concurrency may change between starts.
 
 Ctrl-C (SIGINT) or SIGTERM stops the sweep: no new runs start, each running run gets SIGINT (the
-scripts checkpoint and exit) and is not recorded, so it reruns on the next start; exit code 130.
+scripts checkpoint and exit) and is not recorded, so it resumes from its checkpoint on the next
+start; exit code 130.
 A second Ctrl-C (2 s or more after the first: a signal to the whole process group that also
 reaches it through a campaign is one request) kills the runs at once. Were the sweep killed
 outright, its runs get SIGTERM from the kernel (Linux) and stop in the same way. On Ray, the
@@ -100,11 +101,13 @@ Backends.
   A task whose node dies is retried by Ray (3 times, its default), from scratch.
 - batched (`--backend batched`, `--device cpu|cuda`): the runs as one batched program on one
   device (a3c_tools.batched): run i is the script's own one-worker run with its seed and flags
-  (tests/test_batched.py), its folder gets what a run writes (evaluations.csv, checkpoint.pt,
-  stdout.log). It runs a3c_ff.py, a3c_lws.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and
+  (tests/test_batched.py), its folder gets what a run writes (evaluations.csv, TensorBoard
+  scalars, checkpoint.pt, stdout.log), locked as a run locks it (a run in use elsewhere is left
+  alone, as above). It runs a3c_ff.py, a3c_lws.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and
   a3c_glpq.py on Catch-v0 with one worker; the runs may differ in their seed, learning rate,
   weight and bias init; anything else it cannot batch is refused in one line (exit 2) before
-  anything runs. Ctrl-C checkpoints every run at its last update; the next start resumes them.
+  anything runs. Ctrl-C or SIGTERM checkpoints every run at its last update (its stdout.log
+  names the signal); the next start resumes them.
 
 Exit codes: 0 when every run is in the table and at least one is ok, 1 when every run failed,
 2 for bad arguments, a mismatched configuration or an OUT whose sweep.json or results.csv is not
@@ -874,6 +877,7 @@ class StopRequests:
     def __init__(self) -> None:
         self.level = 0
         self.first = 0.0  # time.monotonic() of the first request
+        self.signal_name: str | None = None  # the first request's signal ("SIGINT", "SIGTERM")
         self.previous = {}
 
     def __enter__(self) -> StopRequests:
@@ -892,9 +896,10 @@ class StopRequests:
         self.level += 1
         name = signal.Signals(signum).name
         if self.level == 1:
-            self.first = now
+            self.first, self.signal_name = now, name
             print(
-                f"{name}: stopping the running runs (they rerun next time); again to kill them",
+                f"{name}: stopping the running runs (started again, the sweep resumes them from "
+                "their checkpoints); again to kill them",
                 flush=True,
             )
         else:
@@ -1261,7 +1266,8 @@ def run_sweep(args: argparse.Namespace, out: Path, runs: list[Run], names: list[
         elif todo and args.backend == "batched":
             from a3c_tools.batched import run_batched
 
-            run_batched(args.script, todo, out, record, lambda: stop.level > 0, args.device)
+            stopped_by = lambda: stop.signal_name if stop.level > 0 else None  # noqa: E731
+            run_batched(args.script, todo, out, record, stopped_by, args.device)
         elif todo:
             run_ray(args.script, todo, out, record, args.cpus, args.address, stop)
     if stop.level > 0:
