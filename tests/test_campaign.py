@@ -472,6 +472,91 @@ def test_a_line_whose_sweep_json_is_not_an_object_is_a_bad_plan(tmp_path):
     )
 
 
+def test_an_extend_never_takes_where_the_data_goes_from_a_sweep_json(line, tmp_path):
+    """A line handed on whose sweep.json would send the runs' data to its writer's W&B entity:
+    the campaign extends it with the rest of its configuration, its runs untracked, and one
+    line says so (the stand-in agent takes no --track: a run given it would fail)."""
+    config = json.loads((line / "sweep.json").read_text())
+    tracked = ["--track", "--wandb-entity", "someone-else", "--wandb-project-name", "theirs"]
+    config["fixed_flags"] = [*tracked, *config["fixed_flags"]]
+    (line / "sweep.json").write_text(json.dumps(config))
+    plan = extend_plan(tmp_path, line, 3)
+    dry = run_main(campaign.main, [str(plan), "--dry-run"])
+    assert dry.returncode == 0, dry.stderr
+    (command,) = dry.stdout.splitlines()
+    assert command.endswith(" -- --eval-interval 50")  # the rest of its fixed flags
+    assert "track" not in command and "wandb" not in command and "someone-else" not in command
+    assert dry.stderr == (
+        f"note: {plan}: item 1: {line / 'sweep.json'} would send the runs' data elsewhere "
+        f"({shlex.join(tracked)}); a campaign takes that from no file: its runs go untracked\n"
+    )
+    result = run_main(campaign.main, [str(plan)])
+    assert result.returncode == 0, result.stderr
+    assert [row["status"] for row in rows(line)] == ["ok", "ok", "ok"]
+    assert "track" not in rows(line)[2]["flags"]
+
+
+def test_a_plan_never_says_where_the_data_goes(line, tmp_path):
+    agent = line.parent / "agents" / "a3c_ff.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "s1"
+        title = "a new line"
+        kind = "sweep"
+        runs = 1
+        seed = 3
+        total_timesteps = 100
+        flags = ["--eval-interval", "50", "--track", "--wandb-entity=someone-else"]
+        lines = [{{ script = "{agent}", out = "{tmp_path / "new"}" }}]
+        """,
+    )
+    dry = run_main(campaign.main, [str(plan), "--dry-run"])
+    assert dry.returncode == 0 and dry.stdout.endswith(" -- --eval-interval 50\n"), dry.stdout
+    assert dry.stderr == (
+        f"note: {plan}: item 1: the plan would send the runs' data elsewhere (--track "
+        "--wandb-entity=someone-else); a campaign takes that from no file: its runs go untracked\n"
+    )
+
+
+@pytest.mark.parametrize(
+    "change, said",
+    [
+        (lambda config: config.pop("seed"), "is not a sweep's configuration (it has no 'seed')"),
+        (lambda config: config.update(samples="learning-rate=uniform:0:1"),
+         "(its 'samples' is 'learning-rate=uniform:0:1', not a list of strings)"),
+    ],
+    ids=["no seed", "samples a string"],
+)  # fmt: skip
+def test_an_extend_of_a_sweep_json_without_a_field_it_uses_is_a_bad_plan(
+    line, tmp_path, change, said
+):
+    config = json.loads((line / "sweep.json").read_text())
+    change(config)
+    (line / "sweep.json").write_text(json.dumps(config))
+    plan = extend_plan(tmp_path, line, 3)
+    for options in ([], ["--status"], ["--dry-run"]):
+        result = run_main(campaign.main, [str(plan), *options])
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+        assert result.stderr.startswith(f"error: {plan}: item 1: {line / 'sweep.json'} ")
+        assert said in result.stderr, result.stderr
+    assert starts(line) == [] and not (plan.parent / "PROGRESS.md").exists()
+
+
+@pytest.mark.parametrize(
+    "text", ["a = " + "[" * 100_000, "a = " + "{ b = " * 100_000], ids=["arrays", "tables"]
+)
+def test_a_plan_nested_too_deep_is_one_line_and_exit_2(tmp_path, text):
+    plan = tmp_path / "plan" / "plan.toml"
+    plan.parent.mkdir()
+    plan.write_text(text)
+    result = run_main(campaign.main, [str(plan), "--status"])
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == f"error: {plan}: TOML nested too deep to read\n"
+    assert sorted(plan.parent.iterdir()) == [plan]
+
+
 def ff_and_online_plan(tmp_path: Path) -> Path:
     """A plan of a sweep item "s1" with two new lines, A3C FF into tmp_path/ff (a Catch sweep
     the batched backend takes) and online LWS into tmp_path/online (a future-work script it

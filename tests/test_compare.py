@@ -516,6 +516,42 @@ def test_from_a_folder_whose_sweep_json_is_not_an_object_exits_2_in_one_line(tmp
     )
 
 
+@pytest.mark.parametrize(
+    ("side", "name", "text", "said"),
+    [
+        ("base", "results.csv", "run_id,status,score\nrun-0000,ok,0.5\nrun-0001,ok,abc\n",
+         "results.csv: run 'run-0001': its score is 'abc', not a number"),  # once a traceback
+        ("other", "results.csv", "run_id,status,score,learning-rate\nrun-0000,ok,0.5,fast\n",
+         "results.csv: run 'run-0000': its learning-rate is 'fast', not a number"),
+        ("other", "results.csv", "run_id,score\nrun-0000,0.5\n",
+         "results.csv is not a sweep's table: no status column"),
+        ("base", "sweep.json", "[" * 100_000,
+         "sweep.json is not a sweep's configuration (JSON nested too deep to read)"),
+        ("other", "sweep.json", '{"seed": 1, "samples": [], "fixed_flags": []}',
+         "sweep.json is not a sweep's configuration (it has no 'script')"),
+    ],
+    ids=["a score", "a learning rate", "no status", "nested 100,000 deep", "no script"],
+)  # fmt: skip
+def test_from_a_folder_it_cannot_read_exits_2_in_one_line(tmp_path, side, name, text, said):
+    """--from reads two folders someone may hand on: a results.csv or sweep.json it cannot
+    use is one line naming what is wrong, exit 2, nothing written."""
+    config = {"script": "a3c_ff.py", "samples": [], "fixed_flags": [], "total_timesteps": 500,
+              "seed": 1, "score": "mean of the final 5 evaluations"}  # fmt: skip
+    folders = {}
+    for line, shift in (("base", 0.0), ("other", 0.1)):
+        rows = [(f"run-{i:04d}", "ok", 0.5 + 0.01 * i + shift) for i in range(3)]
+        folders[line] = write_table(tmp_path / line, rows)
+        (folders[line] / "sweep.json").write_text(json.dumps(config))
+    (folders[side] / name).write_text(text)
+    out = tmp_path / "out"
+    argv = ["--from", str(folders["base"]), str(folders["other"]), "--out", str(out)]
+    result = run_main(compare.main, argv)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert result.stderr.startswith(f"error: {folders[side] / name}"), result.stderr
+    assert said in result.stderr, result.stderr
+    assert not out.exists()
+
+
 def test_a_batched_comparison_runs_each_line_as_one_program(tmp_path):
     """--backend batched: each line's 3 runs are one batched program (their closing lines say
     so), paired by learning rate and seed as on the process backend, and the result is written."""

@@ -357,6 +357,18 @@ def test_a_bad_plan_is_one_line_and_exit_2(tmp_path):
     assert refused.stderr.strip() == f"{outside}: '../../etc' is not a folder under results/"
 
 
+@pytest.mark.parametrize(
+    "text", ["a = " + "[" * 100_000, "a = " + "{ b = " * 100_000], ids=["arrays", "tables"]
+)
+def test_a_plan_nested_too_deep_is_one_line_and_exit_2(tmp_path, text):
+    deep = tmp_path / "deep.toml"
+    deep.write_text(text)
+    for options in ([], ["--check"]):
+        done = run_main(confirmatory.main, [str(deep), *options])
+        assert (done.returncode, done.stdout) == (2, "")
+        assert done.stderr == f"{deep}: TOML nested too deep to read\n"
+
+
 def test_the_campaigns_progress_estimates_the_studys_cpu_hours_from_its_rate_from():
     """PROGRESS.md's "CPU-hours left" for a study's plan (no cpu_hours_per_run) is the compute
     table's, item by item, until a line has runs of its own."""

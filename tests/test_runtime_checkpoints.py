@@ -4,6 +4,8 @@ unsealed one); converted checkpoints from before a flag or the script name still
 
 import io
 import multiprocessing
+import os
+import subprocess
 import sys
 import zipfile
 from pathlib import Path
@@ -334,6 +336,39 @@ def test_the_closing_hint_of_a_run_whose_folder_was_removed_says_so(ff_checkpoin
     assert "no checkpoint was written" not in hint, hint
     assert f"the run folder {run_dir} was removed during the run, with the checkpoints" in hint
     assert "start the run again: python " in hint
+
+
+@pytest.mark.parametrize("folder", ["left by the dead run", "removed during the run"])
+def test_the_command_the_closing_hint_offers_starts_the_run_again(folder, tmp_path, monkeypatch):
+    """The command after `start the run again:`, pasted into a shell, starts the run with its
+    own flags, in a --run-dir it named emptied of the dead run's files first, and also when the
+    folder was removed during the run (no `rm -r` of a missing folder, which fails and stops it)."""
+    from a3c_runtime.a3c import resume_hint
+
+    run_dir = tmp_path / "run"
+    if folder == "left by the dead run":
+        run_dir.mkdir()
+        (run_dir / "evaluations.csv").write_text("global_step\n")
+    argv = ["agents/a3c_ff.py", "--seed", "3", "--run-dir", str(run_dir)]
+    monkeypatch.setattr(sys, "argv", argv)
+    hint = resume_hint(load_script("a3c_ff").AGENT, run_dir)
+    command = hint.split("start the run again: ", 1)[1]
+    stub = tmp_path / "bin" / "python"  # the run's start, as this shell finds it: its argv
+    stub.parent.mkdir()
+    stub.write_text(
+        '#!/bin/sh\n[ -e "$RUN_DIR" ] && echo there > "$STARTED" || echo gone > '
+        '"$STARTED"\necho "$@" >> "$STARTED"\n'
+    )
+    stub.chmod(0o755)
+    started = tmp_path / "started"
+    env = {**os.environ, "PATH": f"{stub.parent}:{os.environ['PATH']}", "STARTED": str(started),
+           "RUN_DIR": str(run_dir)}  # fmt: skip
+    result = subprocess.run(["sh", "-c", command], env=env, capture_output=True, text=True)
+    assert result.returncode == 0 and started.exists(), (command, result.stderr)
+    assert started.read_text().splitlines() == [
+        "gone",  # no folder of the dead run's left
+        " ".join(argv),  # the run's own command, started
+    ]
 
 
 @pytest.mark.parametrize(

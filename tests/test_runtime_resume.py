@@ -5,7 +5,14 @@ that differs is refused in one line; a checkpoint older than a flag still loads,
 import a3c_runtime as runtime
 import pytest
 from a3c_runtime.resume import RESUMABLE, given_flags, resumed_args
-from conftest import load_script, main_exit, shared_for, tiny_args
+from conftest import (
+    load_script,
+    main_exit,
+    read_checkpoint,
+    rewrite_checkpoint,
+    shared_for,
+    tiny_args,
+)
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -121,3 +128,88 @@ def test_a_kept_time_limit_is_announced_with_how_to_change_it(trained, capsys):
         resumed = resumed_args(module.AGENT, checkpoint, args, given_flags(argv, module.Args))
         assert resumed.time_limit == limit
         assert capsys.readouterr().out == f"time_limit 90.0 -> {shown}\n"
+
+
+def started_runs(monkeypatch) -> list:
+    """The Args of each run the command line starts (train() replaced: nothing runs)."""
+    started = []
+
+    def train(agent, args, *rest):
+        started.append(args)
+        return {"outcome": "done"}
+
+    monkeypatch.setattr("a3c_runtime.a3c.train", train)
+    return started
+
+
+def test_a_changed_flag_the_checkpoint_predates_is_refused_in_one_line(
+    trained, monkeypatch, capsys
+):
+    """A flag newer than the checkpoint takes the run's value (its default here), and a given
+    one that differs changes the experiment: refused as any other, not taken silently."""
+    module, _, path = trained
+    raw = read_checkpoint(path)
+    del raw["args"]["rms_init"]  # as if written before --rms-init existed
+    rewrite_checkpoint(path, raw)
+    started = started_runs(monkeypatch)
+    monkeypatch.chdir(path.parent)
+    code, err = main_exit(module, ["--resume", str(path), "--rms-init", "1"], monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith("error: --rms-init 1.0 differs from the run's 0.0: a resumed run keeps")
+    assert started == []
+    code, _ = main_exit(module, ["--resume", str(path), "--rms-init", "0"], monkeypatch, capsys)
+    assert code == 0 and started[0].rms_init == 0.0  # the run's own value: the same run
+
+
+TRACKED_ELSEWHERE = {"track": True, "wandb_entity": "someone-else", "wandb_project_name": "theirs"}
+NOTE = (
+    "note: the checkpoint's run was tracked (W&B entity 'someone-else', project 'theirs'); "
+    "--resume takes where a run's data goes from the command line only: this part "
+)
+
+
+@pytest.mark.parametrize(
+    ("flags", "tracking", "said"),
+    [
+        ([], (False, None, "deep-rl-video-games"),
+         "is not tracked (--track, with --wandb-entity and --wandb-project-name, tracks it)"),
+        (["--track"], (True, None, "deep-rl-video-games"),
+         "logs to W&B entity yours (the default), project 'deep-rl-video-games'"),
+        (["--track", "--wandb-project-name", "mine"], (True, None, "mine"),
+         "logs to W&B entity yours (the default), project 'mine'"),
+        (["--track", "--wandb-entity", "someone-else", "--wandb-project-name", "theirs"],
+         (True, "someone-else", "theirs"), None),
+        (["--no-track"], (False, None, "deep-rl-video-games"), None),
+    ],
+)  # fmt: skip
+def test_a_resume_takes_where_the_data_goes_from_the_command_line_only(
+    trained, flags, tracking, said, monkeypatch, capsys
+):
+    """A checkpoint handed on by someone whose run logged to their W&B entity: resumed here, the
+    run logs only where this command line says (nowhere, by default), and a line says so
+    wherever --resume once took the tracking, entity or project from the checkpoint."""
+    module, _, path = trained
+    raw = read_checkpoint(path)
+    raw["args"].update(TRACKED_ELSEWHERE)
+    rewrite_checkpoint(path, raw)
+    started = started_runs(monkeypatch)
+    monkeypatch.chdir(path.parent)
+    argv = ["--resume", str(path), *flags]
+    code, _ = main_exit(module, argv, monkeypatch, capsys, keep_out=True)
+    out = capsys.readouterr().out
+    assert code == 0, out
+    (args,) = started
+    assert (args.track, args.wandb_entity, args.wandb_project_name) == tracking
+    notes = [line for line in out.splitlines() if "tracked" in line]
+    assert notes == ([] if said is None else [NOTE + said])
+
+
+def test_a_flag_of_where_the_data_goes_is_never_the_experiments(trained):
+    """A sweep's run resumed with tracking of its own is still that run (its checkpoint is not
+    taken for another run's)."""
+    from a3c_runtime.resume import differing_flags
+
+    module, checkpoint, path = trained
+    checkpoint.args.update(TRACKED_ELSEWHERE)
+    args = module.Args(**{**checkpoint.args, "track": False, "wandb_entity": None})
+    assert differing_flags(module.AGENT, checkpoint, args) == []

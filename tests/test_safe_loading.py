@@ -270,6 +270,9 @@ DEFECTS = {  # a sealed checkpoint changed as a careless or hostile writer would
                     "the network has non-finite weights"),
     "inf weights": (lambda c, evil: c["model"]["policy.bias"].fill_(float("inf")),
                     "the network has non-finite weights"),
+    "one NaN among finite weights": (
+        lambda c, evil: c["model"]["value.weight"].view(-1)[1:2].fill_(float("nan")),
+        "the network has non-finite weights (NaN or inf in value.weight"),
     "a complex tensor": (lambda c, evil: c["model"].update(
                              {"value.weight": c["model"]["value.weight"] * (1 + 1j)}),
                          "its 'model' holds a complex-valued tensor"),
@@ -277,6 +280,9 @@ DEFECTS = {  # a sealed checkpoint changed as a careless or hostile writer would
                                        "not an agent script"),
     "a path up as its script": (lambda c, evil: c.update(script="../" * 40 + evil[1:]),
                                 "not an agent script"),
+    "a path up after a3c_ff.py as its script": (
+        lambda c, evil: c.update(script="a3c_ff.py/" + "../" * 40 + evil[1:]),
+        "not an agent script"),
     "a million workers": (lambda c, evil: c["args"].update(num_workers=10**6),
                           "asks for --num-workers 1000000 (valid"),
     "a million evaluation episodes": (lambda c, evil: c["args"].update(eval_episodes=10**6),

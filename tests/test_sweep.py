@@ -1040,6 +1040,12 @@ def folder_state(folder: Path) -> dict[str, bytes]:
         ('{"script": "fake_agent.py", "samp', "not JSON"),  # a truncated file
         ('["fake_agent.py"]', "a JSON list, not an object"),
         ("", "not JSON"),
+        pytest.param("[" * 100_000, "JSON nested too deep to read", id="nested 100,000 deep"),
+        ('{"script": "fake_agent.py", "seed": "1"}', "its 'seed' is '1', not a whole number"),
+        ('{"fixed_flags": ["--seed", 2]}', "its 'fixed_flags' is ['--seed', 2], not a list of"),
+        pytest.param(
+            '{"script": "' + "x" * (1 << 20) + '"}', "more than 1,048,576 bytes", id="1 MiB"
+        ),
     ],
 )
 def test_a_sweep_json_that_is_not_an_object_refuses_in_one_line(fake_agent, tmp_path, text, reason):
@@ -1053,6 +1059,45 @@ def test_a_sweep_json_that_is_not_an_object_refuses_in_one_line(fake_agent, tmp_
     assert reason in result.stderr and result.stderr.count("\n") == 1
     assert folder_state(out) == before
     assert starts(fake_agent) == []
+
+
+def test_where_the_runs_data_goes_is_each_starts_own(fake_agent, tmp_path):
+    """The flags that send a run's data elsewhere (W&B tracking, its entity and project) are
+    not the sweep's configuration: a sweep whose sweep.json has them, started again without
+    them, is the same sweep, and its runs go without them."""
+    out = tmp_path / "out"
+    assert run_sweep(str(fake_agent), "--out", str(out), "--runs", "1").returncode == 0
+    config = json.loads((out / "sweep.json").read_text())
+    tracked = ["--track", "--wandb-entity", "someone-else", "--wandb-project-name=theirs"]
+    config["fixed_flags"] = [*tracked, *config["fixed_flags"]]  # as a start with them wrote it
+    (out / "sweep.json").write_text(json.dumps(config))
+    result = run_sweep(str(fake_agent), "--out", str(out), "--runs", "2")
+    assert result.returncode == 0, result.stderr
+    assert [row["status"] for row in read_table(out)] == ["ok", "ok"]
+    assert "--track" not in read_table(out)[1]["flags"]
+
+
+def test_a_run_resumes_with_the_starts_own_flags_of_where_its_data_goes(tmp_path):
+    """A run interrupted in an earlier start resumes from its checkpoint with the flags of this
+    start that send its data elsewhere: --resume takes them from the command line only."""
+    recorder = tmp_path / "recorder.py"
+    recorder.write_text("import sys\nopen(sys.argv[0] + '.argv', 'w').write(repr(sys.argv[1:]))\n")
+    run_dir = tmp_path / "runs" / "run-0000"
+    run_dir.mkdir(parents=True)
+    (run_dir / "checkpoint.pt").write_bytes(b"")  # left by the earlier start
+    tracked = ["--track", "--wandb-entity", "me", "--wandb_project_name=mine"]
+    command = [str(recorder), "--learning-rate", "0.001", *tracked, "--seed", "1", "--run-dir",
+               str(run_dir)]  # fmt: skip
+    assert sweep.execute_run(command, str(run_dir))["returncode"] == 0
+    argv = Path(f"{recorder}.argv").read_text()
+    assert argv == repr(["--resume", str(run_dir / "checkpoint.pt"), *tracked])
+
+
+def test_the_sweeps_flags_of_where_data_goes_are_the_runs():
+    from a3c_runtime.resume import ELSEWHERE, flag
+
+    names = {f[2:] for f in map(flag, ELSEWHERE)}
+    assert names <= set(sweep.ELSEWHERE_FLAGS) and set(sweep.ELSEWHERE_VALUED) < names
 
 
 @pytest.mark.parametrize(

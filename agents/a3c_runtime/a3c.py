@@ -372,8 +372,10 @@ def resume_hint(agent: Any, run_dir: Path) -> str:
     shown = str(path) if relative.startswith("..") else relative
     if step is None:
         again = shlex.join(["python", script, *sys.argv[1:]])
-        if any(a == "--run-dir" or a.startswith("--run-dir=") for a in sys.argv[1:]):
-            # the command names this folder: a fresh attempt must not mix with the dead one
+        named_folder = any(a == "--run-dir" or a.startswith("--run-dir=") for a in sys.argv[1:])
+        if named_folder and run_dir.exists():
+            # the command names this folder: a fresh attempt must not mix with the dead one (a
+            # folder removed already needs no rm, whose failure would stop the command at once)
             again = f"rm -r -- {shlex.quote(str(run_dir))} && {again}"
         if path.exists():  # changed on disk since it was written: never offered for --resume
             return f"checkpoint {shown} does not verify (corrupt); start the run again: {again}"

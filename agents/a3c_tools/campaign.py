@@ -14,7 +14,9 @@ and stopping it (Ctrl-C, SIGTERM, the session's end) loses at most the runs in f
 Four kinds of item:
 - extend: each of its lines (a committed sweep folder) grows to `runs` runs with the line's own
   configuration, read from its sweep.json, so runs 0..k-1 are kept and run i draws what it drew
-  before (sweep.py's seeding);
+  before (sweep.py's seeding); but for the flags that would send the runs' data elsewhere
+  (--track, --wandb-entity, --wandb-project-name), which a campaign never takes from a file (a
+  sweep.json or the plan): a line says so, and its runs go untracked;
 - repeat: run 0 (or the item's `run`) of a committed line again into a scratch folder and
   compare its score with the committed one (with one worker a run is exactly repeatable, so a
   difference means the code computes something else than when the line was made), and say
@@ -87,7 +89,7 @@ from a3c_tools import atari_figures as af
 from a3c_tools.figure_sweeps import DataError, Parser, execute
 from a3c_tools.paired import read_rows
 from a3c_tools.sweep import UsageError as SweepUsageError
-from a3c_tools.sweep import cpu_count, read_config
+from a3c_tools.sweep import cpu_count, read_config, split_elsewhere
 
 try:
     import tomllib
@@ -159,8 +161,8 @@ def extend_command(script: str, out: Path, runs: int, where: str, source: Path) 
     config_path = source / "sweep.json"
     if not config_path.is_file():
         raise DataError(f"{where}: {source} has no sweep.json")
-    try:
-        config = read_config(config_path)
+    try:  # each field used below there, of its type
+        config = read_config(config_path, ("script", "samples", "fixed_flags", "seed"))
     except SweepUsageError as e:
         raise DataError(f"{where}: {e}") from None
     if Path(script).name != config.get("script"):
@@ -171,7 +173,20 @@ def extend_command(script: str, out: Path, runs: int, where: str, source: Path) 
         command += ["--total-timesteps", str(config["total_timesteps"])]
     for sample in config["samples"]:
         command += ["--sample", sample]
-    return command + ["--", *config["fixed_flags"]]
+    return command + ["--", *not_elsewhere(config["fixed_flags"], where, str(config_path))]
+
+
+def not_elsewhere(flags: list, where: str, source: str) -> list:
+    """flags less those that would send the runs' data elsewhere (sweep.split_elsewhere: W&B
+    tracking, its entity and project), which a file handed on (a sweep.json, the plan) never
+    sets; a line on stderr says so where there were any."""
+    kept, elsewhere = split_elsewhere(flags)
+    if elsewhere:
+        shown = shlex.join(map(str, elsewhere)).encode("unicode_escape").decode()
+        print(f"note: {where}: {source} would send the runs' data elsewhere ({shown}); a "
+              "campaign takes that from no file: its runs go untracked", file=sys.stderr,
+              flush=True)  # fmt: skip
+    return kept
 
 
 def read_item(entry: dict, index: int, plan: Path) -> Item:
@@ -215,7 +230,8 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
                 raise DataError(f"{where}: backend {backend!r}; valid: local, batched")
             if backend == "batched":  # its device is the campaign's --device
                 command += ["--backend", "batched", "--device", "cpu"]
-            command += ["--", *line.get("flags", []), *entry.get("flags", [])]
+            flags = [*line.get("flags", []), *entry.get("flags", [])]
+            command += ["--", *not_elsewhere(flags, where, "the plan")]
             sweeps.append(Sweep(out, int(entry["runs"]), command, 0, out))
     elif kind == "repeat":
         scratch, runs = Path(entry["out"]), int(entry.get("run", 0)) + 1  # runs 0..run
@@ -263,8 +279,10 @@ def read_item(entry: dict, index: int, plan: Path) -> Item:
 def load_plan(plan: Path) -> list[Item]:
     try:
         data = tomllib.loads(plan.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as error:
+    except (OSError, ValueError) as error:  # TOMLDecodeError, UnicodeDecodeError
         raise DataError(f"{plan}: {error}") from None
+    except RecursionError:  # arrays or tables nested past the parser's depth: not a plan
+        raise DataError(f"{plan}: TOML nested too deep to read") from None
     items = [read_item(e, i, plan) for i, e in enumerate(data.get("item", []))]
     ids = [item.id for item in items]
     if len(set(ids)) != len(ids):

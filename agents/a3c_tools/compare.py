@@ -75,6 +75,7 @@ import csv
 import importlib.util
 import io
 import math
+import reprlib
 import shlex
 import sys
 from dataclasses import dataclass
@@ -386,7 +387,9 @@ def config_of(line: Line) -> dict | None:
     if line.config is not None:
         return line.config
     path = line.folder / sweep.CONFIG_NAME
-    return sweep.read_config(path) if path.is_file() else None  # UsageError if not an object
+    if not path.is_file():
+        return None
+    return sweep.read_config(path, ("script", "fixed_flags"))  # UsageError if not a sweep's
 
 
 def env_of(line: Line) -> str:
@@ -673,6 +676,7 @@ def from_lines(options: argparse.Namespace) -> tuple[Line, Line]:
         if not (folder / sweep.TABLE_NAME).is_file():
             raise UsageError(f"--from {text}: no {sweep.TABLE_NAME} there; name two sweep folders")
         lines.append(Line(side, text.rstrip("/"), folder))
+        check_table(lines[-1].table, options.score)
     configs = [config_of(line) for line in lines]
     if all(configs):
         for key in ("seed", "samples"):
@@ -683,6 +687,37 @@ def from_lines(options: argparse.Namespace) -> tuple[Line, Line]:
                     "i is not the same learning rate and seed in both"
                 )
     return lines[0], lines[1]
+
+
+def check_table(table: Path, column: str) -> None:
+    """UsageError, in one line, for a results.csv that --from cannot read: not a sweep's (no
+    run_id, status or `column` column; not a CSV table), or a run whose score (an ok run's) or
+    learning rate is not a finite number."""
+    try:
+        with open(table, newline="") as f:
+            reader = csv.DictReader(f)
+            header = reader.fieldnames or []
+            missing = [name for name in ("run_id", "status", column) if name not in header]
+            if missing:
+                raise UsageError(f"{table} is not a sweep's table: no {', '.join(missing)} column")
+            for row in reader:
+                used = [column] if row["status"] == "ok" else []
+                used += ["learning-rate"] if row.get("learning-rate") else []
+                for name in used:
+                    if not is_finite_number(row[name]):
+                        raise UsageError(
+                            f"{table}: run {reprlib.repr(row['run_id'])}: its {name} is "
+                            f"{reprlib.repr(row[name])}, not a number"
+                        )
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise UsageError(f"{table} is not a sweep's table: {e}") from None
+
+
+def is_finite_number(text: str | None) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except (TypeError, ValueError):
+        return False
 
 
 def main(argv: list[str] | None = None) -> int:

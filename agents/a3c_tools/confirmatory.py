@@ -456,8 +456,11 @@ def main(argv: list[str] | None = None) -> int:
     opts = parser.parse_args(argv)
     try:
         plan = tomllib.loads(opts.plan.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as error:
+    except (OSError, ValueError) as error:  # TOMLDecodeError, UnicodeDecodeError
         print(f"{opts.plan}: {error}", file=sys.stderr)
+        return 2
+    except RecursionError:  # arrays or tables nested past the parser's depth: not a plan
+        print(f"{opts.plan}: TOML nested too deep to read", file=sys.stderr)
         return 2
     try:
         return report(plan, opts.plan, opts.check)

@@ -76,7 +76,11 @@ is), or starts again from scratch where it had written none (its run folder is d
 A checkpoint in a run's folder that is not that run's (another script's, other flags or another
 seed than the run's, or one that does not load safely) refuses the sweep in one line, exit 2,
 before anything runs, naming the folder to move or remove. --runs, the backend and the
-concurrency may change between starts.
+concurrency may change between starts, and so may the flags after `--` that send the runs' data
+elsewhere (--track, --wandb-entity, --wandb-project-name): they are not the configuration, and a
+run resumes with this start's (a3c_runtime.resume: never a checkpoint's). A sweep.json is
+checked before any of it is used: a JSON object (nested no deeper than a parser can read, 1 MiB
+at most) whose fields have their types (CONFIG_FIELDS).
 
 Ctrl-C (SIGINT) or SIGTERM stops the sweep: no new runs start, each running run gets SIGINT (the
 scripts checkpoint and exit) and is not recorded, so it resumes from its checkpoint on the next
@@ -128,11 +132,13 @@ import difflib
 import functools
 import importlib.util
 import io
+import itertools
 import json
 import math
 import os
 import random
 import re
+import reprlib
 import shlex
 import shutil
 import signal
@@ -164,6 +170,11 @@ FIXED_COLUMNS = [
 TRAILING_COLUMNS = ["flags", "error"]
 # flags the sweep sets itself for each run
 RESERVED_FLAGS = {"total-timesteps", "seed", "run-dir", "runs-root", "resume", "evaluate"}
+# the flags that send a run's data elsewhere (a3c_runtime.resume.ELSEWHERE: W&B tracking, its
+# entity and project): a command line's alone, never taken from a file someone hands on (a
+# sweep.json, a campaign's plan, a checkpoint), and no part of a sweep's configuration
+ELSEWHERE_FLAGS = ("track", "no-track", "wandb-entity", "wandb-project-name")
+ELSEWHERE_VALUED = ("wandb-entity", "wandb-project-name")  # each followed by its value
 STOP_GRACE_S = 30.0  # how long a run may take to checkpoint and exit after SIGINT
 TAIL_CHARS = 4000
 RAY_MISSING = '--backend ray needs Ray: pip install -e "./agents[ray]" (or pip install ray)'
@@ -258,6 +269,23 @@ def flag_value(flags: list[str], name: str) -> str | None:
 # The script's flags: a flag it lacks is refused before any run starts
 # ------------------------------------------------------------------------------------------------
 HELP_TIMEOUT_S = 60.0
+
+
+def split_elsewhere(flags: list[str]) -> tuple[list[str], list[str]]:
+    """(the flags without those that send data elsewhere, ELSEWHERE_FLAGS; those, with their
+    values), each in its order."""
+    kept, elsewhere = [], []
+    words = iter(flags)
+    for word in words:
+        flagged = isinstance(word, str) and word.startswith("--")  # a plan's may be of any type
+        name = word[2:].split("=", 1)[0].replace("_", "-") if flagged else ""
+        if name not in ELSEWHERE_FLAGS:
+            kept.append(word)
+            continue
+        elsewhere.append(word)
+        if name in ELSEWHERE_VALUED and "=" not in word:
+            elsewhere.extend(itertools.islice(words, 1))  # its value
+    return kept, elsewhere
 
 
 def script_flags(script: Path) -> dict[str, str] | None:
@@ -506,8 +534,9 @@ def execute_run(
     if holder is not None:  # resumed by hand, say: neither started nor touched, nor recorded
         return {"returncode": None, "interrupted": False, "in_use": holder, "wall_time_s": 0.0}
     checkpoint = run_path / "checkpoint.pt"
-    if checkpoint.is_file():  # interrupted in an earlier sweep: the run goes on with its flags
-        command = [command[0], "--resume", str(checkpoint)]
+    if checkpoint.is_file():  # interrupted in an earlier sweep: the run goes on with its flags,
+        # its data sent where this command says (--resume takes that from the command line only)
+        command = [command[0], "--resume", str(checkpoint), *split_elsewhere(command[1:])[1]]
     else:  # a partial run that wrote no checkpoint starts again
         shutil.rmtree(run_path, ignore_errors=True)
         run_path.mkdir(parents=True)
@@ -703,7 +732,7 @@ def config_mismatch(out: Path, config: dict) -> str | None:
     if not path.exists():
         return None
     stored = read_config(path)
-    differ = [key for key in config if stored.get(key) != config[key]]
+    differ = [key for key in config if not same_setting(key, stored.get(key), config[key])]
     if not differ:
         return None
     details = "; ".join(f"{k}: {stored.get(k)!r} there, {config[k]!r} now" for k in differ)
@@ -713,22 +742,67 @@ def config_mismatch(out: Path, config: dict) -> str | None:
     )
 
 
-def read_config(path: Path) -> dict:
-    """A sweep.json's configuration; UsageError when it is not a JSON object (a truncated
-    file, another tool's), as nothing then says which sweep the folder holds."""
+def same_setting(key: str, stored: typing.Any, now: typing.Any) -> bool:
+    """Whether a sweep.json's setting is the same as a start's: the fixed flags without those
+    that send the data elsewhere (split_elsewhere), which are each start's own."""
+    if key == "fixed_flags" and isinstance(stored, list):
+        return split_elsewhere(stored)[0] == split_elsewhere(now)[0]
+    return stored == now
+
+
+CONFIG_MAX_BYTES = 1 << 20  # a sweep's configuration is some hundred bytes
+CONFIG_FIELDS = {  # each field of a sweep.json (configuration()), and what it must be
+    "script": ("a string", lambda v: isinstance(v, str)),
+    "samples": ("a list of strings", lambda v: isinstance(v, list)
+                and all(isinstance(s, str) for s in v)),
+    "fixed_flags": ("a list of strings", lambda v: isinstance(v, list)
+                    and all(isinstance(s, str) for s in v)),
+    "total_timesteps": ("a whole number >= 1 or null",
+                        lambda v: v is None or (type(v) is int and v >= 1)),
+    "seed": ("a whole number", lambda v: type(v) is int),
+    "score": ("a string", lambda v: isinstance(v, str)),
+}  # fmt: skip
+
+
+def read_config(path: Path, required: tuple[str, ...] = ()) -> dict:
+    """A sweep.json's configuration: a JSON object whose fields (CONFIG_FIELDS) have their
+    types, with each field of `required` there (those its reader uses). UsageError, in one line,
+    for any other file (a truncated one, another tool's, one nested too deep to parse or larger
+    than any configuration), as nothing then says which sweep the folder holds."""
     try:
-        stored = json.loads(path.read_bytes())
-    except (OSError, ValueError) as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
-        reason = e.strerror if isinstance(e, OSError) else f"not JSON: {e}"
-        stored = None
+        with open(path, "rb") as f:
+            data = f.read(CONFIG_MAX_BYTES + 1)
+    except OSError as e:
+        stored, reason = None, e.strerror
     else:
-        reason = f"a JSON {type(stored).__name__}, not an object"
-    if not isinstance(stored, dict):
+        stored, reason = parsed_config(data, required)
+    if reason is not None:
         raise UsageError(
             f"{path} is not a sweep's configuration ({reason}); nothing was run: move it away, "
             "or use another --out"
         )
     return stored
+
+
+def parsed_config(data: bytes, required: tuple[str, ...]) -> tuple[dict | None, str | None]:
+    """(a sweep.json's configuration, None), or (None, what is wrong with it): see read_config."""
+    if len(data) > CONFIG_MAX_BYTES:
+        return None, f"more than {CONFIG_MAX_BYTES:,} bytes"
+    try:
+        stored = json.loads(data)
+    except ValueError as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        return None, f"not JSON: {e}"
+    except RecursionError:  # arrays or objects nested past the parser's depth
+        return None, "JSON nested too deep to read"
+    if not isinstance(stored, dict):
+        return None, f"a JSON {type(stored).__name__}, not an object"
+    for name in required:
+        if name not in stored:
+            return None, f"it has no {name!r}"
+    for name, (kind, valid) in CONFIG_FIELDS.items():
+        if name in stored and not valid(stored[name]):
+            return None, f"its {name!r} is {reprlib.repr(stored[name])}, not {kind}"
+    return stored, None
 
 
 LOCK_NAME = "sweep.lock"
