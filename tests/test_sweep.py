@@ -934,8 +934,10 @@ def run_folder_held(path: Path):
 def test_the_sweep_knows_the_runtimes_lock_and_its_refusal(tmp_path):
     from a3c_runtime import UsageError as RunUsageError
     from a3c_runtime.run_folder import LOCK_FILE, RunFolder
+    from a3c_tools import run_lock
 
-    assert sweep.RUN_LOCK == LOCK_FILE
+    assert run_lock.RUN_LOCK == LOCK_FILE
+    assert sweep.run_holder is run_lock.run_holder  # the batched backend's too
     with run_folder_held(tmp_path) as pid:
         assert sweep.run_holder(tmp_path) == str(pid)
         with pytest.raises(RunUsageError, match=sweep.IN_USE_TEXT):

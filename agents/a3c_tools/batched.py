@@ -761,7 +761,7 @@ def run_batched(
     resume from their checkpoints on the next start). should_stop() names the signal that stops
     the sweep, or None."""
     from a3c_tools import load_script
-    from a3c_tools.sweep import IN_USE_TEXT, run_holder
+    from a3c_tools.run_lock import IN_USE_TEXT, run_holder
 
     module = load_script(script)
     allow_open_files(FILES_PER_RUN * len(todo) + 256)

@@ -151,6 +151,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from a3c_tools import load_script, run_main
+from a3c_tools.run_lock import IN_USE_TEXT, run_holder
 
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
 SEED_STRIDE = 1000  # run i gets seed + SEED_STRIDE * i
@@ -178,10 +179,6 @@ ELSEWHERE_VALUED = ("wandb-entity", "wandb-project-name")  # each followed by it
 STOP_GRACE_S = 30.0  # how long a run may take to checkpoint and exit after SIGINT
 TAIL_CHARS = 4000
 RAY_MISSING = '--backend ray needs Ray: pip install -e "./agents[ray]" (or pip install ray)'
-RUN_LOCK = "run.lock"  # a3c_runtime.run_folder.LOCK_FILE: held by the process training in a run
-# what a run refused for that lock says (a3c_runtime.run_folder); a row that an older sweep
-# recorded as failed with it is a run that was in use, not a failed one
-IN_USE_TEXT = "is in use by process"
 IN_USE_EXIT = 3
 
 
@@ -594,29 +591,6 @@ def _read_from(path: Path, offset: int) -> str:
     with open(path, "rb") as f:
         f.seek(offset)
         return f.read().decode(errors="replace")
-
-
-def run_holder(run_dir: Path) -> str | None:
-    """The process that holds the run folder's lock (its pid as the lock file says, or '?'),
-    or None when no process does. The lock is a3c_runtime.run_folder's POSIX record lock: it is
-    taken and given back at once here, so that the run started next can take it."""
-    try:
-        import fcntl
-    except ImportError:  # no such locks here: the run itself refuses a held folder
-        return None
-    try:
-        fd = os.open(run_dir / RUN_LOCK, os.O_RDWR)  # never created here
-    except OSError:
-        return None  # no lock file (no run there yet, or it ended): nobody holds it
-    try:
-        fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        return os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
-    else:
-        fcntl.lockf(fd, fcntl.LOCK_UN)
-        return None
-    finally:
-        os.close(fd)  # also gives back a lock taken above
 
 
 def _tail(path: Path) -> str:

@@ -1,0 +1,35 @@
+"""Who holds a run folder's lock, read without importing the runtime (and so torch): the sweep
+and its batched backend both ask before they touch a run folder."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+RUN_LOCK = "run.lock"  # a3c_runtime.run_folder.LOCK_FILE: held by the process training in a run
+# what a run refused for that lock says (a3c_runtime.run_folder); a row that an older sweep
+# recorded as failed with it is a run that was in use, not a failed one
+IN_USE_TEXT = "is in use by process"
+
+
+def run_holder(run_dir: Path) -> str | None:
+    """The process that holds the run folder's lock (its pid as the lock file says, or '?'),
+    or None when no process does. The lock is a3c_runtime.run_folder's POSIX record lock: it is
+    taken and given back at once here, so that the run started next can take it."""
+    try:
+        import fcntl
+    except ImportError:  # no such locks here: the run itself refuses a held folder
+        return None
+    try:
+        fd = os.open(run_dir / RUN_LOCK, os.O_RDWR)  # never created here
+    except OSError:
+        return None  # no lock file (no run there yet, or it ended): nobody holds it
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+    else:
+        fcntl.lockf(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)  # also gives back a lock taken above
