@@ -48,7 +48,7 @@ class Args:
     learns from the K x t_max rollout in one update (batched actors inside each Hogwild worker,
     as in PAAC, Clemente et al. 2017); 1 is the thesis's algorithm"""
     time_limit: float | None = None
-    """stop training after this many seconds of wall time, as if T_max was reached"""
+    """stop training after this many seconds; the evaluations due and the final one run after it"""
 
     # Algorithm (thesis Table 5.1)
     learning_rate: float = 7e-4

@@ -607,6 +607,15 @@ MUTANTS = [
            "tensor passes the gate: a NaN among finite weights is loaded", CHECKPOINTS,
            "and not bool(torch.isfinite(tensor).all()):",
            "and not bool(torch.isfinite(tensor).any()):", ("tests/test_safe_loading.py", CKPT)),
+    # --- issue 104: --evaluate stopped by a signal, and its thread count ------------------------
+    Mutant("evaluate-sigterm-kills", "--evaluate takes Ctrl-C but not SIGTERM: `kill` ends it "
+           "with no report of the episodes that ended", EVALUATION,
+           "for s in (signal.SIGINT, signal.SIGTERM)}", "for s in (signal.SIGINT,)}",
+           (EVALUATION_T,)),
+    Mutant("evaluate-all-threads", "--evaluate plays on every core's thread, not on one as the "
+           "run's evaluations do (6x slower on a shared CPU)", EVALUATION,
+           "    torch.set_num_threads(1)\n    checkpoint = load_checkpoint(",
+           "    checkpoint = load_checkpoint(", (EVALUATION_T,)),
 ]
 # fmt: on
 

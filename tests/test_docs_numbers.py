@@ -260,3 +260,19 @@ def test_a_mistyped_atari_score_is_found():
     ]
     not_scores = "Figures 6.9 and 7.8 at 1.5M steps, 1.6x faster, 5.5% of it, `--vf-coef 2.5`"
     assert underivable(NOT_SCORES.sub(" ", not_scores), derivable) == []
+
+
+def test_the_watch_section_states_the_committed_evaluate_output():
+    """docs/atari.md's `--evaluate` of the committed Breakout checkpoint: the mean, the range and
+    the std it states are those of the command's committed output (results/breakout_a3c_ff/
+    evaluate.txt), and the scores there are the mean's."""
+    out = (ROOT / "results" / "breakout_a3c_ff" / "evaluate.txt").read_text()
+    scores = [float(s) for s in re.findall(r"^episode \d+: score (\S+)$", out, re.M)]
+    found = re.search(r"mean score ([\d.]+) \+- ([\d.]+) over (\d+) episodes$", out, re.M)
+    mean, std, n = found.groups()
+    assert len(scores) == int(n) == 10 and abs(sum(scores) / len(scores) - float(mean)) < 1e-3
+    text = (ROOT / "docs" / "atari.md").read_text()
+    section = " ".join(text[text.index("## Watch a trained agent") :].split())
+    spread = f"{min(scores):g} to {max(scores):g}, std {float(std):.1f}"
+    stated = f"the mean: {float(mean):.1f} ({spread})"
+    assert stated in section, f"docs/atari.md does not state {stated!r}"

@@ -1,6 +1,10 @@
 """a3c_runtime.evaluation: the evaluator process and --evaluate."""
 
+import dataclasses
+import os
 import pickle
+import re
+import signal
 import warnings
 from types import SimpleNamespace
 
@@ -337,3 +341,121 @@ def test_evaluate_with_capture_video_records_each_episode_beside_the_checkpoint(
     code, err = main_exit(module, argv, monkeypatch, capsys)
     assert code == 0, err
     assert asked == [(str(tmp_path / "run" / "videos-evaluate"), "episode", True)]
+
+
+class EndingEnv(IdEnv):
+    """IdEnv that can be closed and that sends this process `signum` at its `at`-th step (counted
+    over all its episodes), as Ctrl-C or `kill` would while --evaluate plays."""
+
+    def __init__(self, id: int, length: int, signum: int | None = None, at: int = 0):
+        super().__init__(id, length)
+        self.signum, self.at, self.steps = signum, at, 0
+
+    def step(self, action):
+        self.steps += 1
+        if self.signum is not None and self.steps == self.at:
+            os.kill(os.getpid(), self.signum)
+        return super().step(action)
+
+    def close(self):
+        pass
+
+
+def evaluate_with_envs(tmp_path, monkeypatch, capsys, envs, window=False) -> tuple[int, str, str]:
+    """`--evaluate` of a Catch checkpoint in process, its episodes played in `envs` (a list, or
+    with `window` one env played once per episode as in --render human): (exit code, stdout,
+    stderr)."""
+    module = load_script("a3c_ff")
+    args = tiny_args(module)
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, script="a3c_ff.py")
+    argv = ["--evaluate", str(path), "--eval-episodes", str(len(envs))]
+    if window:
+        make_env = module.AGENT.make_env
+
+        def window_env(env_id, render_mode=None):
+            return envs[0] if render_mode == "human" else make_env(env_id)
+
+        monkeypatch.setattr("catch_env.rendering.check_display", lambda: None)
+        monkeypatch.setattr(module, "AGENT", dataclasses.replace(module.AGENT, make_env=window_env))
+        argv += ["--render", "human"]
+    else:
+        monkeypatch.setattr(runtime.evaluation, "make_eval_envs", lambda *_a, **_k: envs)
+    code, _ = main_exit(module, argv, monkeypatch, capsys, keep_out=True)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_evaluate_prints_each_score_as_its_episode_ends(tmp_path, monkeypatch, capsys):
+    """The episodes of a batch end far apart (minutes on Atari): a line says what is played,
+    then each episode's score comes as it ends, shortest first, and the mean after the last."""
+    envs = [EndingEnv(2, 9), EndingEnv(3, 2), EndingEnv(5, 5)]
+    code, out, err = evaluate_with_envs(tmp_path, monkeypatch, capsys, envs)
+    assert code == 0 and err == "", err
+    lines = out.splitlines()
+    assert lines[0] == ("Catch-v0, step 0: 3 episodes (sampling from pi), at once, each score "
+                        "as its episode ends")  # fmt: skip
+    assert [line.split(":")[0] for line in lines[1:4]] == ["episode 2", "episode 3", "episode 1"]
+    assert re.fullmatch(r"Catch-v0, step 0: mean score [\d.]+ \+- [\d.]+ over 3 episodes", lines[4])
+
+
+class ThreadCountingEnv(EndingEnv):
+    """EndingEnv that records torch's thread count at each step."""
+
+    threads: list[int] = []
+
+    def step(self, action):
+        self.threads.append(torch.get_num_threads())
+        return super().step(action)
+
+
+def test_evaluate_plays_on_one_thread_as_the_runs_evaluations(tmp_path, monkeypatch, capsys):
+    """The run's evaluator and final evaluation play on one torch thread; so does --evaluate
+    (on a shared CPU, a second thread made it 6x slower)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        envs = [ThreadCountingEnv(2, 3), ThreadCountingEnv(3, 4)]
+        code, _, err = evaluate_with_envs(tmp_path, monkeypatch, capsys, envs)
+    finally:
+        torch.set_num_threads(threads)
+    assert code == 0, err
+    assert set(ThreadCountingEnv.threads) == {1}
+
+
+@pytest.mark.parametrize("window", [False, True], ids=["batch", "window"])
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_stops_evaluate_keeping_the_episodes_that_ended(
+    tmp_path, monkeypatch, capsys, signum, window
+):
+    """Ctrl-C or SIGTERM mid-evaluation: the scores of the episodes that ended, a line saying
+    where it stopped, their mean, exit code 0 as a stopped run's, no traceback; the signal
+    handlers are given back."""
+    if window:  # one env, 3 episodes of 4 steps: the signal comes in the second
+        envs, ended = [EndingEnv(2, 4, signum, at=6)] * 3, 1
+    else:  # 4 at once: the two short ones end before the signal
+        envs, ended = [EndingEnv(2, 2), EndingEnv(3, 3), EndingEnv(5, 50, signum, at=10),
+                       EndingEnv(7, 60)], 2  # fmt: skip
+
+    def unhandled(_signum, _frame):  # (without this, a SIGTERM evaluate ignores ends pytest)
+        raise AssertionError("the signal reached the caller: --evaluate did not take it")
+
+    previous = signal.signal(signum, unhandled)
+    try:
+        code, out, err = evaluate_with_envs(tmp_path, monkeypatch, capsys, envs, window)
+        assert signal.getsignal(signum) is unhandled
+    finally:
+        signal.signal(signum, previous)
+    assert code == 0 and err == "", err
+    lines = out.splitlines()[1:]
+    assert [line.split(":")[0] for line in lines[:ended]] == [
+        f"episode {i + 1}" for i in range(ended)
+    ]
+    name, total = signal.Signals(signum).name, len(envs)
+    assert lines[ended] == f"stopped by {name} after {ended} of {total} episodes"
+    assert re.fullmatch(
+        rf"Catch-v0, step 0: mean score [\d.]+ \+- [\d.]+ over the {ended} of {total} episodes "
+        "that ended",
+        lines[ended + 1],
+    )
+    assert len(lines) == ended + 2

@@ -4,13 +4,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import pickle
 import queue
+import signal
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import gymnasium as gym
@@ -37,11 +39,13 @@ def play_episodes(
     should_stop: Callable[[], bool] = lambda: False,
     greedy: bool = False,
     generator: torch.Generator | None = None,
+    on_end: Callable[[int, float], None] | None = None,
 ) -> np.ndarray:
     """Play one episode in each env in lock-step with one batched forward per step, sampling
     actions from pi with `generator` (greedy: argmax pi, the first of tied actions); returns
-    the raw game scores. A recurrent network (initial_state) carries a state row per running
-    episode. Raises EvaluationInterrupted once should_stop() is true."""
+    the raw game scores, and hands each to on_end(env index, score) as its episode ends. A
+    recurrent network (initial_state) carries a state row per running episode. Raises
+    EvaluationInterrupted once should_stop() is true."""
     observations = [env.reset(seed=None if seeds is None else seeds[i])[0] for i, env in
                     enumerate(envs)]  # fmt: skip
     scores = np.zeros(len(envs))
@@ -68,6 +72,8 @@ def play_episodes(
                 observations[i], _, terminated, truncated, info = envs[i].step(action)
                 if terminated or truncated:
                     scores[i] = float(info["episode"]["r"])
+                    if on_end is not None:
+                        on_end(i, float(scores[i]))
                 else:
                     still_running.append(i)
             if recurrent:  # keep the state rows of the episodes still running
@@ -106,16 +112,18 @@ def evaluate_network(
     global_step: int,
     args: Any,
     should_stop: Callable[[], bool] = lambda: False,
+    on_end: Callable[[int, float], None] | None = None,
 ) -> dict:
     """One evaluation of the thesis protocol: an episode per env, sampling from pi (argmax pi
-    with --eval-greedy). Its random numbers (the episodes' seeds, the sampled actions) come from
-    --seed and the step, so the evaluation of a step is the same in a resumed run and in
-    --evaluate of the step's checkpoint."""
+    with --eval-greedy); on_end hears each episode's score as it ends (play_episodes). Its
+    random numbers (the episodes' seeds, the sampled actions) come from --seed and the step, so
+    the evaluation of a step is the same in a resumed run and in --evaluate of the step's
+    checkpoint."""
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
         model.set_progress(global_step / args.total_timesteps)
     start = time.time()
     seeds, generator = evaluation_randomness(args.seed, global_step, len(envs))
-    scores = play_episodes(model, envs, seeds, should_stop, args.eval_greedy, generator)
+    scores = play_episodes(model, envs, seeds, should_stop, args.eval_greedy, generator, on_end)
     return {"global_step": global_step, "scores": scores.tolist(), "seconds": time.time() - start}
 
 
@@ -197,19 +205,50 @@ def evaluation_protocol(trained: Any, args: Any, given: set[str]) -> Any:
     return protocol
 
 
+@contextlib.contextmanager
+def signals_stop_episodes() -> Iterator[list[str]]:
+    """While --evaluate plays, SIGINT and SIGTERM end its episodes at their next step instead of
+    ending the process, so that the episodes that ended are still reported; the first signal's
+    name lands in the list yielded."""
+    caught: list[str] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        if not caught:
+            caught.append(signal.Signals(signum).name)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield caught
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
 def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray:
-    """--evaluate: play episodes with a checkpoint's network, print each score and the mean.
+    """--evaluate: play episodes with a checkpoint's network, print each score as its episode
+    ends and then the mean; returns the scores of the episodes that ended, in episode order.
     With the run's protocol (evaluation_protocol) and the checkpoint's step, the episodes and
     the actions are those of the run's evaluation at that step (evaluate_network): the final
     checkpoint's score is the run's final evaluation. --render human plays one episode at a
-    time in a window (the same episodes' seeds, other action samples). A flag named on the
-    command line (`given`) that the checkpoint's flags contradict is refused
+    time in a window (the same episodes' seeds, other action samples). Ctrl-C or SIGTERM stops
+    the episodes; those that ended are reported, and the command ends normally. A flag named on
+    the command line (`given`) that the checkpoint's flags contradict is refused
     (check_evaluate_flags)."""
+    with signals_stop_episodes() as caught:  # (from the start: a Ctrl-C while loading stops it too)
+        return evaluate_until_stopped(agent, args, given, caught)
+
+
+def evaluate_until_stopped(agent: Any, args: Any, given: set[str], caught: list[str]) -> np.ndarray:
+    """evaluate(), its episodes stopped once `caught` names a signal."""
+    # one thread, as the run's evaluations play (train sets it): on a CPU that others share, a
+    # second thread's waits made the Breakout checkpoint's 10 episodes take 124 s, not 21
+    torch.set_num_threads(1)
     checkpoint = load_checkpoint(args.evaluate, agent, "--evaluate")
     trained = checkpoint.flags
     check_evaluate_flags(trained, args, given)
     protocol = evaluation_protocol(trained, args, given)
-    if args.render == "human":
+    window = args.render == "human" and not args.capture_video  # (a video draws no window)
+    if window:
         from catch_env.rendering import NoDisplayError, check_display
 
         try:
@@ -223,51 +262,61 @@ def evaluate(agent: Any, args: Any, given: set[str] = frozenset()) -> np.ndarray
     model = agent.build_network(num_actions, trained)  # as the run's evaluator builds it
     load_network(model, checkpoint)
     video_dir = str(checkpoint.run_folder / "videos-evaluate") if args.capture_video else None
+    total, head = protocol.eval_episodes, f"{checkpoint.env}, step {checkpoint.global_step:,}"
+    policy = "argmax pi" if protocol.eval_greedy else "sampling from pi"
+    # the episodes of a batch end far apart on Atari: each score is shown as it comes
+    how = "one at a time in a window" if window else "at once, each score as its episode ends"
+    print(f"{head}: {total} episodes ({policy}), {how}", flush=True)
+    ended: dict[int, float] = {}
+
+    def on_end(index: int, score: float) -> None:
+        ended[index] = score
+        print(f"episode {index + 1}: score {score:g}", flush=True)
+
+    stopping = lambda: bool(caught)  # noqa: E731
     try:
-        if args.render == "human" and not args.capture_video:  # (a video draws no window)
-            scores = watched_episodes(agent, model, checkpoint, protocol)
+        if window:
+            watched_episodes(agent, model, checkpoint, protocol, stopping, on_end)
         else:
             envs = make_eval_envs(agent, protocol, video_dir, "episode", every=True)
             try:
-                result = evaluate_network(model, envs, checkpoint.global_step, protocol)
+                evaluate_network(model, envs, checkpoint.global_step, protocol, stopping, on_end)
             finally:
                 for env in envs:
                     env.close()
-            scores = result["scores"]
-            for episode, score in enumerate(scores):
-                print(f"episode {episode + 1}: score {score:g}", flush=True)
-    except KeyboardInterrupt:  # Ctrl-C: an evaluation is whole or not at all
-        print("stopped by SIGINT", flush=True)
-        scores = []
-    if not scores:
-        return np.asarray(scores)
-    print(
-        f"{checkpoint.env}, step {checkpoint.global_step:,}: mean score {np.mean(scores):.3f} "
-        f"+- {np.std(scores):.3f} over {len(scores)} episodes",
-        flush=True,
-    )
-    return np.asarray(scores)
+    except EvaluationInterrupted:
+        pass
+    scores = np.asarray([ended[i] for i in sorted(ended)])
+    over = f"{len(scores)} episodes"
+    if len(scores) < total:  # only a signal ends the episodes early
+        print(f"stopped by {caught[0]} after {len(scores)} of {total} episodes", flush=True)
+        over = f"the {len(scores)} of {total} episodes that ended"
+    if len(scores):
+        print(f"{head}: mean score {scores.mean():.3f} +- {scores.std():.3f} over {over}",
+              flush=True)  # fmt: skip
+    return scores
 
 
 def watched_episodes(
-    agent: Any, model: nn.Module, checkpoint: Checkpoint, protocol: Any
-) -> list[float]:
-    """--render human: the protocol's episodes one at a time in a window, each score printed."""
+    agent: Any,
+    model: nn.Module,
+    checkpoint: Checkpoint,
+    protocol: Any,
+    should_stop: Callable[[], bool],
+    on_end: Callable[[int, float], None],
+) -> None:
+    """--render human: the protocol's episodes one at a time in a window, each score handed to
+    on_end(episode index, score); raises EvaluationInterrupted once should_stop() is true."""
     if hasattr(model, "set_progress"):  # e.g. GLPQ's temperature schedule
         model.set_progress(checkpoint.global_step / protocol.total_timesteps)
     seeds, generator = evaluation_randomness(
         protocol.seed, checkpoint.global_step, protocol.eval_episodes
     )
     env = agent.make_env(checkpoint.env, render_mode="human")
-    scores = []
     try:
         for episode, seed in enumerate(seeds):
-            play = play_episodes(model, [env], [seed], greedy=protocol.eval_greedy,
-                                 generator=generator)  # fmt: skip
-            scores.append(float(play[0]))
-            print(f"episode {episode + 1}: score {scores[-1]:g}", flush=True)
-    except KeyboardInterrupt:  # Ctrl-C: the episodes watched so far still count
-        print(f"stopped by SIGINT after {len(scores)} episodes", flush=True)
+            play = play_episodes(model, [env], [seed], should_stop, protocol.eval_greedy,
+                                 generator)  # fmt: skip
+            on_end(episode, float(play[0]))
     finally:
         env.close()
-    return scores
