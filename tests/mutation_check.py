@@ -393,7 +393,8 @@ MUTANTS = [
     # --- the sweep: run i's seed and sampled flags -----------------------------------------------
     Mutant("sweep-restarts-cut-off-run", "a sweep started again runs a cut-off run from its "
            "start, not on from its checkpoint", SWEEP,
-           'command = [command[0], "--resume", str(checkpoint)]', "command = [*command]",
+           'command = [command[0], "--resume", str(checkpoint), *split_elsewhere(command[1:])[1]]',
+           "command = [*command]",
            ("tests/test_atari_figures.py", SWEEP_T)),
     Mutant("atari-figure-default-seed", "an Atari figure names a line's runs by sweep.py's "
            "default seeds, not the seed its sweep ran from (a campaign item's own)",
