@@ -59,10 +59,10 @@ DISK_BYTES = 64 << 20  # the tmpfs of a disk-full trial: room for the run, until
 
 
 def checkpoint_state(path: Path) -> dict | None:
-    """The checkpoint's step and flags if it reads safely (its CRCs and seal verified, loaded
-    with weights_only=True), else None."""
+    """The checkpoint's step and flags if it reads safely (its seal verified, its document
+    valid: a3c_runtime.checkpoint_file), else None."""
     try:
-        checkpoint = read_checkpoint(str(path))
+        checkpoint = read_checkpoint(str(path))[0]
         return {"step": int(checkpoint["global_step"]), "args": checkpoint["args"]}
     except (UsageError, KeyError, TypeError, ValueError):
         return None

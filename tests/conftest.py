@@ -95,16 +95,20 @@ def shared_for(module: ModuleType, args, num_actions: int = 3) -> runtime.Shared
 
 
 def read_checkpoint(path: Path | str) -> dict:
-    """A checkpoint's contents, loaded as the project loads them (weights_only=True)."""
-    return torch.load(path, map_location="cpu", weights_only=True)
+    """A checkpoint's contents as save_checkpoint hands them to the file (its document's fields,
+    its tensors by part), read as the project reads them."""
+    from a3c_runtime.checkpoint_file import read_checkpoint as read
+    from a3c_runtime.checkpoint_file import read_tensors
+
+    document, _, data = read(str(path))
+    return {**document, **read_tensors(data, document, str(path))}
 
 
-def rewrite_checkpoint(path: Path | str, checkpoint: dict) -> None:
+def rewrite_checkpoint(path: Path | str, checkpoint: dict, checked: bool = True) -> None:
     """Write checkpoint's contents to path as save_checkpoint writes them (sealed): a checkpoint
-    changed on purpose, as an older script or another tool would have written it."""
-    buffer = io.BytesIO()
-    torch.save(checkpoint, buffer)
-    Path(path).write_bytes(runtime.checkpoints.seal(buffer.getvalue()))
+    changed on purpose, as an older script or another tool would have written it (checked=False:
+    whatever its document holds, as a hostile writer would)."""
+    Path(path).write_bytes(runtime.checkpoints.encode(checkpoint, checked))
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ import copy
 import a3c_runtime as runtime
 import pytest
 import torch
-from conftest import load_script, main_exit, read_evaluations
+from conftest import load_script, main_exit, read_checkpoint, read_evaluations
 from test_script_drift import PAIRS
 
 # the scripts whose worker loop is their own (each drift pair that may change `worker`), and FF
@@ -86,7 +86,7 @@ def test_a_whole_run_of_each_worker_loop(name, tmp_path, monkeypatch, capsys):
         # 0 grows between its updates, so how many rounds ran depends on its share of the CPU;
         # test_future_work's test_growth_rounds_survive_a_resume pins the rounds down)
         def rounds() -> tuple[int, int]:
-            checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+            checkpoint = read_checkpoint(tmp_path / "checkpoint.pt")
             return int(checkpoint["model"]["growth_round"]), checkpoint["global_step"] // 500
 
         before, due = rounds()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 from a3c_runtime import UsageError
-from conftest import evaluation_steps, load_script, main_exit
+from conftest import evaluation_steps, load_script, main_exit, read_checkpoint
 
 TINY = ["--num-workers", "2", "--eval-episodes", "2", "--log-interval", "1"]
 
@@ -419,7 +419,7 @@ def test_a_checkpoint_of_an_old_flag_belongs_to_its_script(
     args = tiny_args(module)
     path = tmp_path / "checkpoint.pt"
     a3c_runtime.save_checkpoint(path, shared_for(module, args), args, 0.0, f"{thesis}.py")
-    checkpoint = torch.load(path, weights_only=True)
+    checkpoint = read_checkpoint(path)
     checkpoint["args"] = {**asdict(args), flag: value}  # as the old script stored its flags
     rewrite_checkpoint(path, checkpoint)
     code, err = main_exit(load_script(thesis), ["--evaluate", str(path)], monkeypatch, capsys)

@@ -12,7 +12,16 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import AGENTS, ROOT, TINY, load_script, main_exit, read_evaluations, run_script
+from conftest import (
+    AGENTS,
+    ROOT,
+    TINY,
+    load_script,
+    main_exit,
+    read_checkpoint,
+    read_evaluations,
+    run_script,
+)
 
 pytestmark = pytest.mark.slow
 SCRIPT = AGENTS / "a3c_ff.py"
@@ -77,7 +86,7 @@ def test_short_run_writes_evaluations_events_and_checkpoint(short_run):
     assert len(rows) >= 3  # step 0, about 1000, 2000 and the final one
     assert all(0.0 <= float(r["mean_return"]) <= 1.0 and r["episodes"] == "5" for r in rows)
     assert list(run_dir.glob("events.out.tfevents.*"))
-    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    checkpoint = read_checkpoint(run_dir / "checkpoint.pt")
     assert checkpoint["global_step"] == steps[-1]
     summary = result.stdout.strip().splitlines()[-1]
     assert summary.startswith("done: final eval") and "SPS" in summary, result.stdout
@@ -102,7 +111,7 @@ def test_tensorboard_scalars(short_run):
 
 def test_resume_continues_global_step(short_run, tmp_path):
     run_dir, _ = short_run
-    old = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    old = read_checkpoint(run_dir / "checkpoint.pt")
     before = old["global_step"]
     copy = tmp_path / "checkpoint.pt"
     copy.write_bytes((run_dir / "checkpoint.pt").read_bytes())
@@ -127,7 +136,7 @@ def test_resume_continues_global_step(short_run, tmp_path):
     rows = read_evaluations(tmp_path)[len(old_rows) :]
     steps = [int(r["global_step"]) for r in rows]
     assert len(steps) == 1 and steps[0] >= 5000, "a resumed run must not start again at step 0"
-    after = torch.load(copy, weights_only=True)
+    after = read_checkpoint(copy)
     assert after["global_step"] == steps[-1]
     # wall time continues too: the evaluations' wall_time_s count from the first run's start
     assert after["wall_time"] > old["wall_time"]
@@ -156,7 +165,7 @@ def test_signal_writes_checkpoint_and_exits_zero(tmp_path, signum, group):
     stdout, stderr = process.communicate(timeout=30)
     assert process.returncode == 0, stderr
     assert f"stopped by {signal.Signals(signum).name}" in stdout
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    checkpoint = read_checkpoint(tmp_path / "checkpoint.pt")
     assert checkpoint["global_step"] > 0
     assert_all_gone(pids)
 
@@ -228,7 +237,7 @@ def test_a_stopped_run_names_its_checkpoint_and_the_resume_command(tmp_path):
     process.send_signal(signal.SIGTERM)
     stdout, _ = process.communicate(timeout=30)
     match = resume_line(stdout)
-    step = torch.load(tmp_path / "checkpoint.pt", weights_only=True)["global_step"]
+    step = read_checkpoint(tmp_path / "checkpoint.pt")["global_step"]
     assert int(match[2].replace(",", "")) == step
     assert Path(ROOT, match[1]).resolve() == (tmp_path / "checkpoint.pt").resolve()
 
@@ -270,7 +279,7 @@ def test_resume_keeps_the_runs_flags(tmp_path, monkeypatch, capsys):
     code, err = main_exit(a3c, argv, monkeypatch, capsys, keep_out=True)
     assert code == 0, err
     assert "total_timesteps 1,000 -> 2,000" in capsys.readouterr().out
-    args = torch.load(checkpoint, weights_only=True)["args"]
+    args = read_checkpoint(checkpoint)["args"]
     assert (args["learning_rate"], args["t_max"], args["total_timesteps"]) == (3e-4, 5, 2000)
     code, err = main_exit(
         a3c, ["--resume", checkpoint, "--learning-rate", "0.5"], monkeypatch, capsys
@@ -303,7 +312,7 @@ def test_a_full_disk_ends_the_run_cleanly_keeping_the_last_checkpoint(tmp_path):
             lines[-2] == f"error: could not write {run_dir}/checkpoint.pt: No space left on device"
         )
         match = resume_line(stderr)
-        step = torch.load(run_dir / "checkpoint.pt", weights_only=True)["global_step"]
+        step = read_checkpoint(run_dir / "checkpoint.pt")["global_step"]
         assert step >= 1000 and int(match[2].replace(",", "")) == step
         assert not list(run_dir.glob("*.tmp"))
         assert_all_gone(pids)
@@ -405,14 +414,14 @@ def test_an_interrupted_run_resumed_is_the_run_not_interrupted(uninterrupted, tm
     if killed:
         os.kill(pids["evaluator"], signal.SIGCONT)
     assert_all_gone(pids)
-    step = torch.load(run_dir / "checkpoint.pt", weights_only=True)["global_step"]
+    step = read_checkpoint(run_dir / "checkpoint.pt")["global_step"]
     assert 0 < step < 6000, step
     resumed = run("--resume", str(run_dir / "checkpoint.pt"))
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming run run at step {step:,}" in resumed.stdout
     assert evaluations_of(run_dir) == evaluations_of(uninterrupted)
-    ours = torch.load(run_dir / "checkpoint.pt", weights_only=True)
-    theirs = torch.load(uninterrupted / "checkpoint.pt", weights_only=True)
+    ours = read_checkpoint(run_dir / "checkpoint.pt")
+    theirs = read_checkpoint(uninterrupted / "checkpoint.pt")
     assert ours["global_step"] == theirs["global_step"] == 6000
     for key, value in theirs["model"].items():
         assert torch.equal(ours["model"][key], value), key
@@ -474,7 +483,7 @@ def test_a_run_stopped_while_its_evaluator_is_behind_exits_keeping_what_it_waits
     stdout, stderr = process.communicate(timeout=60)
     assert process.returncode == 0, stderr
     assert "stopped by SIGTERM" in stdout and "survives; resume:" in stdout, stdout
-    checkpoint = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    checkpoint = read_checkpoint(tmp_path / "checkpoint.pt")
     logged = {int(row["global_step"]) for row in read_evaluations(tmp_path)}
     waiting = [step for step, _ in checkpoint["pending_evaluations"]]
     assert waiting and not logged & set(waiting), (waiting, logged)

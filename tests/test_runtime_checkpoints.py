@@ -1,18 +1,20 @@
 """a3c_runtime.checkpoints: a round trip of network, optimizer statistics and step, and every
-bad checkpoint as a one-line UsageError (changed bytes included, before torch reads them; an
-unsealed one); converted checkpoints from before a flag or the script name still load."""
+bad checkpoint as a one-line UsageError (changed bytes included, before a tensor is read; one
+of the older format, naming its converter); converted checkpoints from before a flag or the
+script name still load."""
 
-import io
+import json
 import multiprocessing
 import os
+import re
 import subprocess
 import sys
-import zipfile
 from pathlib import Path
 from types import SimpleNamespace
 
 import a3c_runtime as runtime
 import pytest
+import safetensors.torch
 import torch
 from conftest import (
     SCRIPTS,
@@ -76,9 +78,9 @@ def test_checkpoint_round_trip_and_errors(name, tmp_path):
     with pytest.raises(runtime.UsageError, match="corrupt"):
         runtime.load_checkpoint(str(tmp_path / "garbage.pt"), agent)
     torch.save({"weights": 1}, tmp_path / "other.pt")
-    with pytest.raises(runtime.UsageError, match="carries no seal"):
+    with pytest.raises(runtime.UsageError, match="older format .* convert it: python -m a3c_tools"):
         runtime.load_checkpoint(str(tmp_path / "other.pt"), agent)
-    rewrite_checkpoint(tmp_path / "other.pt", {"weights": 1})
+    safetensors.torch.save_file({"weights": torch.ones(1)}, tmp_path / "other.pt")
     with pytest.raises(runtime.UsageError, match="not a checkpoint written by the agent scripts"):
         runtime.load_checkpoint(str(tmp_path / "other.pt"), agent)
     elu = tiny_args(module, activation="elu")
@@ -209,18 +211,16 @@ def changed_copies(path: Path, folder: Path) -> dict[str, Path]:
     middle = len(data) // 2
     flipped = data[:middle] + bytes(b ^ 0xFF for b in data[middle : middle + 64])
     flipped += data[middle + 64 :]
-    # a byte no member's CRC covers: the time in a member's header (offset 10), which the CRC
-    # check alone lets through (the seal, the SHA-256 of the bytes, does not)
-    header = bytearray(data)
-    header[zipfile.ZipFile(path).infolist()[0].header_offset + 10] ^= 0x01
-    foreign = folder / "foreign.zip"
-    with zipfile.ZipFile(foreign, "w") as archive:
-        archive.writestr("readme.txt", "not a checkpoint")
+    # a byte of the document (the JSON in the header): its step, 0 -> 1
+    header = data.replace(b'\\"global_step\\":0', b'\\"global_step\\":1', 1)
+    assert header != data
     changed = {
         "flipped": flipped,
-        "header": bytes(header),
+        "header": header,
         "truncated": data[: len(data) // 3],
-        "foreign": foreign.read_bytes(),
+        "truncated in its header": data[:100],
+        "foreign": b"PK\x03\x04" + bytes(100),  # a zip (torch's format before this one)
+        "empty": b"",
     }
     copies = {}
     for name, content in changed.items():
@@ -230,24 +230,25 @@ def changed_copies(path: Path, folder: Path) -> dict[str, Path]:
     return copies
 
 
-CHANGES = ("flipped", "header", "truncated", "foreign")
+CHANGES = ("flipped", "header", "truncated", "truncated in its header", "foreign", "empty")
 MESSAGES = {
-    "flipped": "is corrupt: archive/data/",  # ... N fails its CRC check
+    "flipped": "is corrupt: its bytes do not match the SHA-256 it was written with",
     "header": "is corrupt: its bytes do not match the SHA-256 it was written with",
-    "truncated": "is corrupt: not a whole zip archive",
-    "foreign": "is corrupt: not a torch file",
+    "truncated": "is corrupt: its bytes do not match the SHA-256 it was written with",
+    "truncated in its header": "is corrupt or not a checkpoint: its header declares",
+    "foreign": "is of the older format (a torch zip), which is not loaded; if you trust it, "
+    "convert it: python -m a3c_tools.convert_checkpoint",
+    "empty": "is corrupt or not a checkpoint: its header declares 0 bytes (the file has 0)",
 }
 
 
 @pytest.mark.parametrize("change", CHANGES)
-def test_a_changed_checkpoint_is_refused_before_torch_reads_it(change, ff_checkpoints, tmp_path):
+def test_a_changed_checkpoint_is_refused_before_a_tensor_is_read(change, ff_checkpoints, tmp_path):
     new, _ = ff_checkpoints
     path = changed_copies(new, tmp_path)[change]
-    with pytest.raises(runtime.UsageError, match=MESSAGES[change]) as error:
+    with pytest.raises(runtime.UsageError, match=re.escape(MESSAGES[change])) as error:
         runtime.load_checkpoint(str(path), load_script("a3c_ff").AGENT)
     assert "\n" not in str(error.value)
-    if change == "flipped":
-        assert str(error.value).endswith("fails its CRC check")
     assert runtime.checkpoints.checkpoint_step(path) is None  # never offered for --resume
 
 
@@ -265,42 +266,14 @@ def test_resume_and_evaluate_refuse_a_changed_checkpoint_and_leave_it(
         assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt"]
 
 
-def stripped(data: bytes) -> bytes:
-    """The checkpoint's bytes without its seal: the zip comment's length set to 0."""
-    comment = zipfile.ZipFile(io.BytesIO(data)).comment
-    head = data[: len(data) - len(comment)]
-    return head[:-2] + b"\x00\x00"
-
-
-@pytest.mark.parametrize("mode", ["--resume", "--evaluate"])
-def test_a_checkpoint_without_its_seal_is_refused_and_left(mode, ff_checkpoints, tmp_path,
-                                                          monkeypatch, capsys):  # fmt: skip
-    """Whether its bytes are whole (the seal merely gone) or changed where no CRC looks (the
-    seal stripped, then a header's byte flipped): refused in one line, exit 2, unchanged, with
-    the command that converts a checkpoint its owner trusts."""
-    new, _ = ff_checkpoints
-    data = stripped(new.read_bytes())
-    header = bytearray(data)
-    header[zipfile.ZipFile(new).infolist()[0].header_offset + 10] ^= 0x01
-    module = load_script("a3c_ff")
-    for name, content in (("whole", data), ("changed", bytes(header))):
-        (tmp_path / name).mkdir()
-        path = tmp_path / name / "checkpoint.pt"
-        path.write_bytes(content)
-        assert zipfile.ZipFile(path).testzip() is None  # every CRC holds
-        code, err = main_exit(module, [mode, str(path), "--num-workers", "1"], monkeypatch, capsys)
-        assert code == 2 and err.count("\n") == 1, err
-        assert "carries no seal" in err and "python -m a3c_tools.convert_checkpoint" in err
-        assert path.read_bytes() == content
-        assert sorted(p.name for p in path.parent.iterdir()) == ["checkpoint.pt"]
-        assert runtime.checkpoints.checkpoint_step(path) is None
-
-
 def test_a_sealed_checkpoint_loads(ff_checkpoints):
+    """A safetensors file: its tensors flat, its document and seal in the header's metadata."""
     new, _ = ff_checkpoints
-    assert zipfile.ZipFile(new).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
-    assert runtime.checkpoints.verify_checkpoint(new.read_bytes()) is None
-    assert read_checkpoint(new)["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
+    with safetensors.safe_open(new, "pt") as f:
+        metadata = f.metadata()
+        assert all(name.startswith(("model/", "optimizer/")) for name in f.keys())  # noqa: SIM118
+    assert sorted(metadata) == ["a3c", "sha256"]
+    assert json.loads(metadata["a3c"])["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
     checkpoint = runtime.load_checkpoint(str(new), load_script("a3c_ff").AGENT)
     assert checkpoint.flags == tiny_args(load_script("a3c_ff"))
     assert runtime.checkpoints.checkpoint_step(new) == 0

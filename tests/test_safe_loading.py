@@ -1,8 +1,11 @@
-"""Nothing the project loads from a file runs code: a checkpoint carrying a pickled object whose
-`__reduce__` would create a file, planted in each part a checkpoint has and sealed as the
-project seals its own, is refused in one line by every entry point that reads checkpoints, and
-the file is never created. Checkpoints from before safe loading are refused naming the command
-that converts them; converted, they load and resume as they were."""
+"""Nothing the project loads from a file runs code: a checkpoint is a safetensors file and a
+JSON document (a3c_runtime.checkpoint_file), which hold no objects. A checkpoint of the older
+format (a torch zip) carrying a pickled object whose `__reduce__` would create a file, planted
+in each part a checkpoint had and sealed as the project sealed its own, is refused in one line
+by every entry point that reads checkpoints (the converter included), and the file is never
+created. Checkpoints of the older format are refused naming the command that converts them;
+converted, they load and resume as they were. Every field of the current format is checked (the
+gate): a bad one is one line at every entry point."""
 
 import importlib.util
 import io
@@ -13,7 +16,7 @@ import a3c_runtime as runtime
 import numpy as np
 import pytest
 import torch
-from a3c_runtime.snapshots import restored_state, saved_state
+from a3c_runtime.snapshots import copy_of, restored_state, saved_state
 from a3c_tools import convert_checkpoint, record_play, sweep
 from conftest import (
     ROOT,
@@ -53,7 +56,7 @@ def catch_worker_state() -> tuple:
 def good(tmp_path_factory):
     """A real a3c_ff.py checkpoint with every part a checkpoint can have."""
     module = load_script("a3c_ff")
-    args = tiny_args(module)
+    args = tiny_args(module, envs_per_worker=2)  # as catch_worker_state's envs
     shared = shared_for(module, args)
     path = tmp_path_factory.mktemp("good") / "checkpoint.pt"
     snapshot = {
@@ -62,6 +65,15 @@ def good(tmp_path_factory):
     }
     runtime.save_checkpoint(path, shared, args, 1.0, "a3c_ff.py", snapshot)
     return path
+
+
+def old_checkpoint(path, raw: dict, sealed: bool = True, form: str = "a3c-checkpoint-v2"):
+    """raw (read_checkpoint's fields) written in the older format: a torch zip, sealed."""
+    old = {k: v for k, v in raw.items() if k != "pending_steps"}
+    old.update(format=form, network="ActorCritic")
+    buffer = io.BytesIO()
+    torch.save(old, buffer)
+    path.write_bytes(convert_checkpoint.seal(buffer.getvalue()) if sealed else buffer.getvalue())
 
 
 PLACES = {  # each part of a checkpoint, and a payload put there
@@ -75,12 +87,13 @@ PLACES = {  # each part of a checkpoint, and a payload put there
 
 
 def planted(good, folder, place, marker):
-    """A copy of the good checkpoint with the payload at place, sealed; its payload is live."""
+    """A copy of the good checkpoint in the older format with the payload at place, sealed; its
+    payload is live."""
     checkpoint = read_checkpoint(good)
     PLACES[place](checkpoint, Payload(marker))
     path = folder / "run" / "checkpoint.pt"
     path.parent.mkdir(parents=True)
-    rewrite_checkpoint(path, checkpoint)
+    old_checkpoint(path, checkpoint)
     torch.load(path, weights_only=False)  # what an unsafe loader would do: the file appears
     assert marker.exists()
     marker.unlink()
@@ -105,12 +118,13 @@ def test_a_payload_anywhere_in_a_checkpoint_never_runs(place, good, tmp_path, mo
     for mode in ("--resume", "--evaluate"):
         code, err = main_exit(module, [mode, str(path), "--num-workers", "1"], monkeypatch, capsys)
         assert code == 2 and err.count("\n") == 1, (mode, err)
-        assert "cannot be loaded safely: it holds more than data" in err, err
+        assert "is of the older format (a torch zip), which is not loaded" in err, err
     result = run_main(record_play.main, [str(path), "-o", str(tmp_path / "play.gif")])
-    assert result.returncode == 2 and "cannot be loaded safely" in result.stderr
+    assert result.returncode == 2 and "is of the older format" in result.stderr
     assert result.stderr.count("\n") == 1, result.stderr
     result = run_main(convert_checkpoint.main, [str(path)])  # only v1's worker pickles unpickle
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "holds more than any checkpoint of the agent scripts" in result.stderr
     assert runtime.checkpoints.checkpoint_step(path) is None  # the closing hint's reader
     assert fault_injection().checkpoint_state(path) is None
     out = tmp_path / "sweep"  # a sweep (and compare, through it) finding it in a run's folder
@@ -120,7 +134,7 @@ def test_a_payload_anywhere_in_a_checkpoint_never_runs(place, good, tmp_path, mo
             "--total-timesteps", "1000", "--", "--env", "Catch-v0"]  # fmt: skip
     result = run_main(sweep.main, argv)
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
-    assert "is not run-0000's to resume" in result.stderr and "loaded safely" in result.stderr
+    assert "is not run-0000's to resume" in result.stderr and "older format" in result.stderr
     assert sorted(p.name for p in out.iterdir()) == ["runs"]  # nothing written
     assert (out / "runs" / "run-0000" / "checkpoint.pt").read_bytes() == before
     assert not marker.exists()
@@ -133,7 +147,8 @@ def test_a_sweep_resumes_only_its_runs_own_checkpoint(good, tmp_path):
             "--total-timesteps", "1000", "--seed", "11"]  # fmt: skip
     (out / "runs" / "run-0000").mkdir(parents=True)
     checkpoint = read_checkpoint(good)
-    checkpoint["args"].update(seed=5, total_timesteps=1000)
+    checkpoint["args"].update(seed=5, total_timesteps=1000, envs_per_worker=1)
+    checkpoint["workers"] = {}
     rewrite_checkpoint(out / "runs" / "run-0000" / "checkpoint.pt", checkpoint)
     result = run_main(sweep.main, argv)
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
@@ -149,7 +164,9 @@ def test_a_sweep_resumes_its_runs_checkpoint_made_on_a_host_of_other_precision(g
     checkpoint = read_checkpoint(good)
     planned = runtime.flags.resolve_precision("auto", checkpoint["args"]["envs_per_worker"])
     other = "fp32" if planned != "fp32" else "bf16-learn"
-    checkpoint["args"].update(seed=11, total_timesteps=1000, num_workers=1, precision=other)
+    checkpoint["args"].update(seed=11, total_timesteps=1000, num_workers=1, precision=other,
+                              envs_per_worker=1)  # fmt: skip
+    checkpoint["workers"] = {}
     path = out / "runs" / "run-0000" / "checkpoint.pt"
     rewrite_checkpoint(path, checkpoint)
     script = str(ROOT / "agents" / "a3c_ff.py")
@@ -162,15 +179,27 @@ def test_a_sweep_resumes_its_runs_checkpoint_made_on_a_host_of_other_precision(g
     assert refused is not None and "--seed 5, not 11" in refused
 
 
-def test_an_unsealed_safe_checkpoint_converted_keeps_its_worker_states(good, tmp_path):
+def same(a, b) -> bool:
+    """Whether two checkpoint parts are equal: tensors by value, containers by their items."""
+    if torch.is_tensor(a) or torch.is_tensor(b):
+        return torch.is_tensor(a) and torch.is_tensor(b) and torch.equal(a, b)
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def test_an_unsealed_v2_checkpoint_converted_keeps_its_worker_states(good, tmp_path):
     path = tmp_path / "checkpoint.pt"
     checkpoint = read_checkpoint(good)
-    torch.save(checkpoint, path)  # the safe form, but no seal
+    old_checkpoint(path, checkpoint, sealed=False)
     assert run_main(convert_checkpoint.main, [str(path)]).returncode == 0
-    converted = runtime.checkpoints.read_checkpoint(str(path))
+    converted = read_checkpoint(path)
     assert converted["workers"].keys() == checkpoint["workers"].keys()
     for worker_id, state in checkpoint["workers"].items():
-        assert repr(converted["workers"][worker_id]) == repr(state)
+        assert same(converted["workers"][worker_id], state)
+    assert same(converted["pending_evaluations"], checkpoint["pending_evaluations"])
 
 
 def v1_checkpoint(good, path, sealed: bool = False):
@@ -178,12 +207,8 @@ def v1_checkpoint(good, path, sealed: bool = False):
     worker's state pickled (and, before the seal, no zip comment)."""
     checkpoint = read_checkpoint(good)
     parts = catch_worker_state()
-    checkpoint.update(format="a3c-checkpoint-v1",
-                      workers={0: [pickle.dumps(part) for part in parts]})  # fmt: skip
-    if sealed:
-        rewrite_checkpoint(path, checkpoint)
-    else:
-        torch.save(checkpoint, path)
+    checkpoint["workers"] = {0: [pickle.dumps(part) for part in parts]}
+    old_checkpoint(path, checkpoint, sealed, form="a3c-checkpoint-v1")
     return parts
 
 
@@ -196,15 +221,13 @@ def test_an_old_checkpoint_is_refused_naming_the_command_that_converts_it(
     before = path.read_bytes()
     code, err = main_exit(load_script("a3c_ff"), ["--resume", str(path)], monkeypatch, capsys)
     assert code == 2 and err.count("\n") == 1, err
-    said = "was written before checkpoints were safe to load" if sealed else "carries no seal"
-    assert said in err
+    assert "is of the older format (a torch zip), which is not loaded" in err
     assert f"convert it: python -m a3c_tools.convert_checkpoint {path}" in err
     assert path.read_bytes() == before
     result = run_main(convert_checkpoint.main, [str(path)])
     assert result.returncode == 0 and result.stdout.startswith(f"converted {path}"), result.stderr
-    assert zipfile.ZipFile(path).comment.startswith(runtime.checkpoints.SEAL_PREFIX)
     assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob("*.a3c-partial"))
-    assert read_checkpoint(path)["format"] == runtime.checkpoints.CHECKPOINT_FORMAT
+    assert runtime.checkpoints.read_checkpoint(str(path))[0]["format"] == "a3c-checkpoint-v3"
     checkpoint = runtime.load_checkpoint(str(path), load_script("a3c_ff").AGENT)
     for key, value in read_checkpoint(good)["model"].items():
         assert torch.equal(checkpoint.model[key], value), key
@@ -220,7 +243,7 @@ def test_an_old_checkpoint_is_refused_naming_the_command_that_converts_it(
         for a, b in zip(envs2.step(actions)[:4], envs.step(actions)[:4], strict=True):
             assert np.array_equal(a, b)
     again = run_main(convert_checkpoint.main, [str(path)])
-    assert again.returncode == 0 and "in the safe form already" in again.stdout
+    assert again.returncode == 0 and "in the current format already" in again.stdout
 
 
 def test_the_committed_checkpoints_load_safely():
@@ -229,35 +252,50 @@ def test_the_committed_checkpoints_load_safely():
     paths = [p for p in sorted(ROOT.glob("results/**/*.pt")) if "runs" not in p.parts]
     assert paths, "no committed checkpoint found"
     for path in paths:
-        checkpoint = runtime.checkpoints.read_checkpoint(str(path))
-        assert checkpoint["format"] == runtime.checkpoints.CHECKPOINT_FORMAT, path
+        checkpoint = runtime.checkpoints.open_checkpoint(str(path))
+        agent = load_script(checkpoint.script.removesuffix(".py")).AGENT
+        assert runtime.checkpoints.for_agent(checkpoint, agent).model, path
 
 
-def test_what_a_worker_state_saves_is_data(good):
-    """The safe form holds tensors, numbers, strings, lists, tuples and dicts only."""
-    allowed = (torch.Tensor, int, float, str, bool, type(None))
+def test_a_checkpoint_holds_tensors_and_a_json_document_only(good):
+    """The file: safetensors' header (each tensor's dtype, shape and place), the document and
+    the seal as its metadata, then the tensors' bytes; nothing else."""
+    import json
 
-    def data_only(value):
-        if isinstance(value, dict):
-            return all(data_only(k) and data_only(v) for k, v in value.items())
-        if isinstance(value, (list, tuple)):
-            return all(data_only(v) for v in value)
-        return isinstance(value, allowed)
+    import safetensors
 
-    assert data_only(read_checkpoint(good))
-    buffer = io.BytesIO(good.read_bytes())
-    assert isinstance(torch.load(buffer, weights_only=True)["workers"][0][1], dict)
+    with safetensors.safe_open(good, "pt") as f:
+        metadata, names = f.metadata(), list(f.keys())  # noqa: SIM118
+    assert sorted(metadata) == ["a3c", "sha256"]
+    document = json.loads(metadata["a3c"])
+    assert sorted(document) == ["args", "format", "global_step", "optimizer_name",
+                                "pending_steps", "script", "wall_time", "workers"]  # fmt: skip
+    assert document["pending_steps"] == [1000] and sorted(document["workers"]) == ["0"]
+    assert {name.split("/")[0] for name in names} == {"model", "optimizer", "pending", "workers"}
 
 
 # ------------------------------------------------------------------------------------------------
 # The gate (a3c_runtime.checkpoints.open_checkpoint): a sealed checkpoint whose fields are wrong is
 # refused in one line by every entry point, before anything is imported, created or started
 # ------------------------------------------------------------------------------------------------
+NAN, INF = float("nan"), float("inf")
+
+
+def pending_step(checkpoint: dict, step) -> None:
+    checkpoint["pending_evaluations"][0] = (step, checkpoint["pending_evaluations"][0][1])
+
+
+def junk_generator(state: list) -> list:
+    state[0] = {"bit_generator": {"bit_generator": "PCG64", "state": {"state": 1, "inc": 1},
+                                  "has_uint32": 7, "uinteger": -1}}  # fmt: skip
+    return state
+
+
 DEFECTS = {  # a sealed checkpoint changed as a careless or hostile writer would, and the line
     # (`evil`: the absolute path of a script that, imported, creates a file)
-    "a key missing": (lambda c, evil: c.pop("args"), "is malformed: it has no 'args'"),
+    "a key missing": (lambda c, evil: c.pop("args"), "is malformed: its args: Field required"),
     "a step of another type": (lambda c, evil: c.update(global_step="1000"),
-                               "is malformed: its 'global_step' is a str"),
+                               "is malformed: its global_step: Input should be a valid integer"),
     "a flag of another type": (lambda c, evil: c["args"].update(learning_rate="fast"),
                                "its --learning-rate 'fast' is not float"),
     "a module to import as its env": (lambda c, evil: c["args"].update(env="this:Catch-v0"),
@@ -266,16 +304,13 @@ DEFECTS = {  # a sealed checkpoint changed as a careless or hostile writer would
                        "an unknown env id; valid:"),
     "an env that is no game": (lambda c, evil: c["args"].update(env="CartPole-v1"),
                                "not an env of the scripts; valid:"),
-    "NaN weights": (lambda c, evil: c["model"]["value.weight"].fill_(float("nan")),
+    "NaN weights": (lambda c, evil: c["model"]["value.weight"].fill_(NAN),
                     "the network has non-finite weights"),
-    "inf weights": (lambda c, evil: c["model"]["policy.bias"].fill_(float("inf")),
+    "inf weights": (lambda c, evil: c["model"]["policy.bias"].fill_(INF),
                     "the network has non-finite weights"),
     "one NaN among finite weights": (
-        lambda c, evil: c["model"]["value.weight"].view(-1)[1:2].fill_(float("nan")),
+        lambda c, evil: c["model"]["value.weight"].view(-1)[1:2].fill_(NAN),
         "the network has non-finite weights (NaN or inf in value.weight"),
-    "a complex tensor": (lambda c, evil: c["model"].update(
-                             {"value.weight": c["model"]["value.weight"] * (1 + 1j)}),
-                         "its 'model' holds a complex-valued tensor"),
     "an absolute path as its script": (lambda c, evil: c.update(script=evil),
                                        "not an agent script"),
     "a path up as its script": (lambda c, evil: c.update(script="../" * 40 + evil[1:]),
@@ -291,10 +326,62 @@ DEFECTS = {  # a sealed checkpoint changed as a careless or hostile writer would
                    "asks for --num-workers 0 (valid"),
     "a pending evaluation of another network": (
         lambda c, evil: c["pending_evaluations"].append((2000, {"w": torch.zeros(2)})),
-        "its 'pending_evaluations' are not (step, its network) pairs"),
-    "a worker by name": (lambda c, evil: c["workers"].update({"w": []}),
-                         "its 'workers' are not each worker's state by its number"),
+        "does not fit this network (is it another script's?): missing: pending/1/"),
+    "a worker by name": (lambda c, evil: c["workers"].update({"w": copy_of(c["workers"][0])}),
+                         "is corrupt or not a checkpoint: its workers/w/"),
+    # issue 103: fields that passed, or failed later with a traceback
+    "a step of 10**30": (lambda c, evil: c.update(global_step=10**30),
+                         "is malformed: its global_step: Input should be less than or equal"),
+    "a NaN mean square": (lambda c, evil: c["optimizer"]["square_avg"][0].view(-1)[0:1].fill_(NAN),
+                          "the optimizer statistics are not finite (NaN or inf in optimizer/"),
+    "a negative mean square": (lambda c, evil: c["optimizer"]["square_avg"][1].fill_(-1.0),
+                               "its optimizer statistic optimizer/square_avg/1 is negative"),
+    "a mean square of another shape": (
+        lambda c, evil: c["optimizer"]["square_avg"].__setitem__(0, torch.zeros(3)),
+        "does not fit this network: size mismatch for optimizer/square_avg/0"),
+    "a worker numbered -5 with a junk generator": (
+        lambda c, evil: c["workers"].update({-5: junk_generator(copy_of(c["workers"][0]))}),
+        "is corrupt or not a checkpoint: its workers/-5/"),
+    "a generator of another kind": (
+        lambda c, evil: c["workers"][0][0]["bit_generator"].update(bit_generator="MT19937"),
+        "is malformed: its workers/0/generator/bit_generator: Input should be 'PCG64'"),
+    "a generator word beyond 128 bits": (
+        lambda c, evil: c["workers"][0][0]["bit_generator"]["state"].update(inc=2**200),
+        "is malformed: its workers/0/generator/state/inc"),
+    "an env stack of another shape": (
+        lambda c, evil: c["workers"][0][1]["env"].update(stack=torch.zeros(3, 4, 84, 84)),
+        "does not fit this network: size mismatch for workers/0/env/stack"),
+    "an env state of another env count": (
+        lambda c, evil: c["workers"][0][1]["env"]["env"]["rngs"].pop(),
+        "worker 0's env state is not that of 2 Catch envs"),
+    "a NaN flag": (lambda c, evil: c["args"].update(learning_rate=NAN),
+                   "is malformed: its args/learning_rate: Value error, not a bool"),
+    "an infinite flag": (lambda c, evil: c["args"].update(ent_coef=-INF),
+                         "is malformed: its args/ent_coef: Value error"),
+    "an LSTM of 10**9 cells": (lambda c, evil: c["args"].update(lstm_cells=10**9),
+                               "asks for --lstm-cells 1000000000 (valid: 1 to 16,384)"),
+    "10**9 prototypes": (lambda c, evil: c["args"].update(prototypes_per_action=10**9),
+                         "asks for --prototypes-per-action 1000000000"),
+    "10**9 LWS kernels": (lambda c, evil: c["args"].update(lws_kcps=10**9),
+                          "asks for --lws-kcps 1000000000"),
+    "10**9 LWS maps": (lambda c, evil: c["args"].update(lws_second_layer_maps=10**9),
+                       "asks for --lws-second-layer-maps 1000000000"),
+    "10**9 where maps": (lambda c, evil: c["args"].update(ww_where_maps=10**9),
+                         "asks for --ww-where-maps 1000000000"),
+    "a pending step of True": (
+        lambda c, evil: pending_step(c, True),
+        "is malformed: its pending_steps/0: Input should be a valid integer"),
+    "a negative pending step": (
+        lambda c, evil: pending_step(c, -5),
+        "is malformed: its pending_steps/0: Input should be greater than or equal to 0"),
+    "a network name": (lambda c, evil: c.update(network="x" * 10_000),
+                       "is malformed: its network: Extra inputs are not permitted"),
+    "an optimizer name of none": (lambda c, evil: c.update(optimizer_name="sgd"),
+                                  "is malformed: its optimizer_name: Input should be 'rmsprop'"),
 }  # fmt: skip
+# the defects of issue 103 (tests/test_safe_loading.py's own run of them against 952b51b fails
+# each of them: passed, a traceback, or another line)
+ISSUE_103 = list(DEFECTS)[list(DEFECTS).index("a step of 10**30") :]
 
 
 def started(*args, **kwargs):
@@ -355,7 +442,7 @@ def test_a_checkpoint_with_a_bad_field_is_one_line_at_every_entry_point(
     change(checkpoint, str(evil))
     path = tmp_path / "run" / "checkpoint.pt"
     path.parent.mkdir()
-    rewrite_checkpoint(path, checkpoint)
+    rewrite_checkpoint(path, checkpoint, checked=False)
     lines = refusals(path, tmp_path, monkeypatch, capsys)
     assert not marker.exists()  # a script the checkpoint names was never imported
     for entry, line in lines.items():
@@ -383,5 +470,7 @@ def test_an_archive_declaring_more_than_it_holds_is_refused_before_inflating(
 
     monkeypatch.setattr(zipfile.ZipExtFile, "read", inflating)
     code, err = main_exit(load_script("a3c_ff"), ["--evaluate", str(path)], monkeypatch, capsys)
-    assert code == 2 and err.count("\n") == 1, err
-    assert "its members declare 67,108,864 bytes, more than the" in err, err
+    assert code == 2 and err.count("\n") == 1 and "is of the older format" in err, err
+    result = run_main(convert_checkpoint.main, [str(path)])  # the one reader of zips
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "its members declare 67,108,864 bytes, more than the" in result.stderr

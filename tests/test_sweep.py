@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_main
+from conftest import read_checkpoint, run_main
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP = ["-m", "a3c_tools.sweep"]  # the tools, with this interpreter
@@ -853,8 +853,6 @@ def test_tiny_a3c_sweep_ray(tmp_path):
 def test_an_interrupted_run_resumes_with_its_own_flags(tmp_path):
     """A run stopped mid-way (the sweep was interrupted) goes on from its checkpoint when the
     sweep starts again, with the flags it was started with (--resume keeps them all)."""
-    import torch
-
     run_dir = tmp_path / "runs" / "run-0000"
     command = [str(A3C), "--total-timesteps", "4000", "--learning-rate", "0.0005",
                "--num-workers", "1", "--checkpoint-interval", "500", "--eval-interval", "2000",
@@ -862,12 +860,12 @@ def test_an_interrupted_run_resumes_with_its_own_flags(tmp_path):
     checkpoint = run_dir / "checkpoint.pt"
     first = sweep.execute_run(command, str(run_dir), lambda: int(checkpoint.exists()))
     assert first["interrupted"] and first["returncode"] == 0, first
-    step = torch.load(checkpoint, weights_only=True)["global_step"]
+    step = read_checkpoint(checkpoint)["global_step"]
     assert step < 4000
     second = sweep.execute_run(command, str(run_dir))
     assert second["returncode"] == 0 and not second["interrupted"], second
     assert "resuming run run-0000 at step" in second["stdout_tail"]
-    resumed = torch.load(checkpoint, weights_only=True)
+    resumed = read_checkpoint(checkpoint)
     assert resumed["global_step"] >= 4000
     assert (resumed["args"]["learning_rate"], resumed["args"]["seed"]) == (0.0005, 5)
 

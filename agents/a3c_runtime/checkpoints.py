@@ -1,41 +1,45 @@
-"""Checkpoints: written atomically (a temp file, flushed to disk, then a rename) so that a crash
-or a full disk never leaves a corrupt one or a partial file, and sealed with a SHA-256 of their
-bytes; read safely (every zip member's CRC and the seal checked, then `torch.load` with
-`weights_only=True`, which builds tensors, numbers, strings, lists, tuples and dicts and runs
-no code), so that a missing, changed, truncated, unsealed, foreign or code-carrying checkpoint
-is a one-line UsageError before anything uses it; restored into the shared network and
-optimizer for --resume.
+"""Checkpoints: saved (save_checkpoint, in the format of a3c_runtime.checkpoint_file:
+safetensors with a declared document, sealed, written atomically); the gate (a checkpoint read
+once, every field checked, handed on as a `Checkpoint` record; nothing downstream reads a raw
+field); restoring for --resume. A checkpoint is someone else's data: a field that becomes a
+script, an env, a number of processes or a size is checked against what the project offers,
+and its tensors' names, dtypes and shapes against those of the network its validated flags
+build (on torch's meta device: nothing allocated) before a tensor is read. Checkpoints of the
+older format (a torch zip) are read only by python -m a3c_tools.convert_checkpoint."""
 
-The seal guards against accidents (a flipped bit, a truncated copy, a stripped comment), not
-against someone: anyone can recompute it. What makes a shared checkpoint harmless is that
-loading one never executes it."""
-
-import contextlib
-import hashlib
-import io
-import math
-import os
-import pickle
+import functools
 import re
-import shlex
-import struct
 import types
 import typing
-import zipfile
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 import torch
 import torch.nn as nn
 
-from .flags import VALID_ENVS, UsageError
+from .checkpoint_file import (  # noqa: F401  (the names callers import from here)
+    CHECKPOINT_FORMAT,
+    DTYPE_NAMES,
+    MAX_ENVS,
+    MAX_STEP,
+    MAX_WORKERS,
+    PARTIAL_SUFFIX,
+    Entry,
+    WriteFailed,
+    catch_layout,
+    check_checkpoint_path,
+    convert_command,
+    encode,
+    partial_path,
+    problem_of,
+    read_checkpoint,
+    read_tensors,
+    write_atomically,
+)
+from .flags import OBSERVATION_SHAPE, VALID_ENVS, UsageError, probe_env
 from .hogwild import Shared
 
-CHECKPOINT_FORMAT = "a3c-checkpoint-v2"  # every part of the safe form; "script" always set
-# v1 held the workers' states pickled, so a v1 checkpoint is never loaded: its owner converts it
-# (python -m a3c_tools.convert_checkpoint, which unpickles it on that explicit request)
-UNSAFE_FORMATS = ("a3c-checkpoint-v1",)
 # Chapter 8's ideas were flags of the thesis scripts before each became a script of its own in
 # agents/future_work/: a checkpoint an older thesis script wrote with one of them set belongs to
 # that script, which plays and resumes it; the thesis script refuses it, naming the script.
@@ -52,10 +56,25 @@ MOVED_FLAGS = {
     },
     "a3c_lws.py": {("lws_centroid_source", "online"): "future_work/a3c_lws_online.py"},
 }
-# The seal: the zip's comment holds the SHA-256 of every byte before it. torch reads no zip
-# comment, and the CRCs cover only the members' data, not the headers between them.
-SEAL_PREFIX = b"a3c-sha256:"
-END_OF_ARCHIVE = b"PK\x05\x06"  # the end-of-central-directory record: 22 bytes + the comment
+# a script a checkpoint may name: agents/a3c_*.py or agents/future_work/a3c_*.py, by file name
+# ("" before the name was stored); never a path elsewhere
+SCRIPT_NAME = re.compile(r"(future_work/)?a3c_[A-Za-z0-9_]+\.py")
+# what a checkpoint's flags may ask of this machine, beyond the flags' own checks (flags.py):
+# counts, sizes and the scripts' own network sizes, (lowest, highest)
+FLAG_BOUNDS = {
+    "num_workers": (1, MAX_WORKERS),  # processes
+    "envs_per_worker": (1, MAX_ENVS),
+    "eval_episodes": (1, 10_000),  # envs, one per episode
+    "t_max": (1, 100_000),
+    "total_timesteps": (1, MAX_STEP),
+    "eval_interval": (1, MAX_STEP),
+    "checkpoint_interval": (1, MAX_STEP),
+    "lstm_cells": (1, 16_384),
+    "prototypes_per_action": (1, 4096),
+    "lws_kcps": (1, 4096),
+    "lws_second_layer_maps": (1, 4096),
+    "ww_where_maps": (0, 4096),
+}
 
 
 def save_checkpoint(
@@ -70,15 +89,11 @@ def save_checkpoint(
     Of theta, the optimizer statistics and the global step as they are in `shared`, or as a
     worker copied them at a checkpoint mark (`snapshot`: model, optimizer, global_step); either
     may add what an exact resume needs (a3c_runtime.snapshots): `workers`, each worker's state
-    in the safe form (snapshots.saved_state), and `pending_evaluations`, the (step, theta)
-    evaluations not taken yet."""
+    (snapshots.saved_state), and `pending_evaluations`, the (step, theta) evaluations not taken."""
     snapshot = snapshot or {}
-    checkpoint = {
-        "format": CHECKPOINT_FORMAT,
+    raw = {
         "script": script,
-        "network": type(shared.model).__name__,
-        "model": snapshot.get("model")
-        or {k: v.detach().clone() for k, v in shared.model.state_dict().items()},
+        "model": snapshot.get("model") or shared.model.state_dict(),
         "optimizer": snapshot.get("optimizer") or shared.optimizer.state_dict(),
         "optimizer_name": args.optimizer,
         "global_step": snapshot.get("global_step", shared.global_step()),
@@ -87,185 +102,14 @@ def save_checkpoint(
         "workers": snapshot.get("workers", {}),
         "pending_evaluations": snapshot.get("pending_evaluations", []),
     }
-    buffer = io.BytesIO()  # serialised first, so that a failed write is the OS's own error
-    torch.save(checkpoint, buffer)
-    write_atomically(path, seal(buffer.getvalue()))
-
-
-def seal(archive: bytes) -> bytes:
-    """The zip archive torch.save wrote, with the SHA-256 of its bytes as the zip's comment.
-    ValueError if the archive does not end in a comment-less end-of-central-directory record
-    (a layout this seal does not know: nothing unsealed is ever written)."""
-    if archive[-22:-18] != END_OF_ARCHIVE or archive[-2:] != b"\x00\x00":
-        raise ValueError("the archive does not end in a comment-less end-of-central-directory")
-    length = len(SEAL_PREFIX) + hashlib.sha256().digest_size * 2
-    head = archive[:-2] + struct.pack("<H", length)  # the comment's length is sealed too
-    return head + SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode()
-
-
-def verify_checkpoint(data: bytes) -> str | None:
-    """What is wrong with a checkpoint's bytes, or None if nothing: an archive that is no zip
-    (truncated, another format), a member whose CRC fails, a zip that torch did not write, no
-    seal (NO_SEAL), a seal that does not match its bytes."""
-    try:
-        with zipfile.ZipFile(io.BytesIO(data)) as archive:
-            # torch stores its members uncompressed: members that declare more bytes than the
-            # file holds are a compressed archive's, refused before anything is inflated
-            declared = sum(member.file_size for member in archive.infolist())
-            if declared > len(data):
-                return (
-                    f"its members declare {declared:,} bytes, more than the {len(data):,} of the "
-                    "file (torch stores them uncompressed)"
-                )
-            bad_member = archive.testzip()  # reads every member, checking its CRC
-            comment, names = archive.comment, archive.namelist()
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, ValueError) as e:
-        return f"not a whole zip archive ({e})"
-    if bad_member is not None:
-        return f"{bad_member} fails its CRC check"
-    if not any(name.endswith("/data.pkl") for name in names):
-        return "not a torch file (a zip archive without data.pkl)"
-    if not comment:
-        return NO_SEAL
-    head = data[: len(data) - len(comment)]
-    if comment != SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode():
-        return "its bytes do not match the SHA-256 it was written with"
-    return None
-
-
-NO_SEAL = "it carries no seal"
-
-
-def convert_command(path: str) -> str:
-    """The command that converts a checkpoint its owner trusts into the safe, sealed form."""
-    return shlex.join(["python", "-m", "a3c_tools.convert_checkpoint", path])
-
-
-def read_checkpoint(path: str, flag: str | None = None) -> dict:
-    """The checkpoint at path, its bytes verified and then loaded safely (weights_only=True:
-    nothing in it runs), or a one-line UsageError saying what is wrong with it. Checks the
-    format, not whose it is (load_checkpoint does)."""
-    check_checkpoint_path(path, flag)
-    try:
-        data = Path(path).read_bytes()  # read once: what is verified is what is loaded
-    except OSError as e:
-        raise UsageError(f"cannot read checkpoint {path!r}: {e.strerror or e}") from e
-    problem = verify_checkpoint(data)
-    if problem == NO_SEAL:
-        raise UsageError(
-            f"checkpoint {path!r} carries no seal (written before checkpoints were sealed and "
-            f"safe to load, or changed since), so it is not loaded; if you trust it, convert "
-            f"it: {convert_command(path)}"
-        )
-    if problem is not None:
-        raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
-    try:
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as e:  # an object that is not data: never built, never run
-        lines = str(e).strip().splitlines()
-        detail = next((line.strip() for line in lines if "Unsupported" in line), None)
-        raise UsageError(
-            f"checkpoint {path!r} cannot be loaded safely: it holds more than data "
-            f"({detail or (lines or [type(e).__name__])[0]}); if it is yours, from before "
-            f"checkpoints were safe to load, convert it: {convert_command(path)}"
-        ) from None
-    except Exception as e:
-        detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
-        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
-    if isinstance(checkpoint, dict) and checkpoint.get("format") in UNSAFE_FORMATS:
-        raise UsageError(
-            f"checkpoint {path!r} was written before checkpoints were safe to load, and is not "
-            f"loaded; if you trust it, convert it: {convert_command(path)}"
-        )
-    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
-        raise UsageError(f"{path!r} is not a checkpoint written by the agent scripts")
-    return checkpoint
-
-
-class WriteFailed(Exception):
-    """A run's file could not be written (a full disk, a read-only folder, a file-size limit)."""
-
-    def __init__(self, path: Path | str, error: OSError):
-        self.path, self.error = Path(path), error
-        super().__init__(f"could not write {path}: {error.strerror or error}")
-
-
-PARTIAL_SUFFIX = ".a3c-partial"  # a name no user's file has: a run removes only its own
-
-
-def partial_path(path: Path) -> Path:
-    """The temp file write_atomically writes path's new content into before the rename."""
-    return path.with_name(path.name + PARTIAL_SUFFIX)
-
-
-def write_atomically(path: Path, data: bytes | memoryview) -> None:
-    """path's new content, all or nothing: a temp file beside it, flushed to disk, renamed over
-    it. On failure the temp file is removed and the old file is untouched: WriteFailed."""
-    tmp = partial_path(path)
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as e:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise WriteFailed(path, e) from e
-
-
-def checkpoint_step(path: Path, agent: Any = None) -> int | None:
-    """The global step of a checkpoint that passes the gate (open_checkpoint; load_checkpoint
-    as agent's, given one), else None."""
-    try:
-        checkpoint = open_checkpoint(str(path))
-        return (checkpoint if agent is None else for_agent(checkpoint, agent)).global_step
-    except UsageError:
-        return None
-
-
-def check_checkpoint_path(path: str, flag: str | None = None) -> None:
-    """UsageError unless path is a file: a missing path, or a folder (naming the checkpoint in
-    it, if it holds one, as `flag PATH`)."""
-    if os.path.isdir(path):
-        inside = os.path.join(path, "checkpoint.pt")
-        if os.path.isfile(inside):
-            command = f"{flag} {inside}" if flag else inside
-            raise UsageError(f"checkpoint {path!r} is a folder: pass its checkpoint, {command}")
-        raise UsageError(f"checkpoint {path!r} is a folder, and holds no checkpoint.pt")
-    if not os.path.isfile(path):
-        raise UsageError(f"checkpoint {path!r} does not exist")
-
-
-# ------------------------------------------------------------------------------------------------
-# The gate: a checkpoint is read once, every field checked, and handed on as a Checkpoint record;
-# nothing downstream reads a raw field. A checkpoint is someone else's data: a field that becomes
-# a script, an env, a number of processes or a size is checked against what the project offers.
-# ------------------------------------------------------------------------------------------------
-# a script a checkpoint may name: agents/a3c_*.py or agents/future_work/a3c_*.py, by file name
-# ("" before the name was stored); never a path elsewhere
-SCRIPT_NAME = re.compile(r"(future_work/)?a3c_[A-Za-z0-9_]+\.py")
-# what a checkpoint's flags may ask of this machine, beyond the flags' own checks (flags.py)
-FLAG_BOUNDS = {
-    "num_workers": 1024,  # processes
-    "envs_per_worker": 4096,
-    "eval_episodes": 10_000,  # envs, one per episode
-    "t_max": 100_000,
-    "total_timesteps": 10**13,
-    "eval_interval": 10**13,
-    "checkpoint_interval": 10**13,
-}
-FIELDS = {  # each field a checkpoint has, and the type it must be
-    "format": str, "script": str, "network": str, "model": dict, "optimizer": dict,
-    "optimizer_name": str, "global_step": int, "wall_time": (int, float), "args": dict,
-    "workers": dict, "pending_evaluations": (list, tuple),
-}  # fmt: skip
+    write_atomically(path, encode(raw))  # encoded first: a failed write is the OS's own error
 
 
 @dataclass(frozen=True)
 class Checkpoint:
     """A checkpoint that passed the gate (open_checkpoint; load_checkpoint for a script): every
-    field checked. `flags` is the script's Args of the run (None before load_checkpoint);
+    field checked. `flags` is the script's Args of the run, and the tensors (model, optimizer,
+    workers' states, pending evaluations) are read, only after load_checkpoint (for_agent);
     `run_folder` is the folder of the run that wrote it (the checkpoint's own)."""
 
     path: str
@@ -275,98 +119,43 @@ class Checkpoint:
     global_step: int
     wall_time: float
     optimizer_name: str
-    model: dict[str, torch.Tensor]
-    optimizer: dict
-    workers: dict[int, list]
-    pending_evaluations: list[tuple[int, dict]]
     run_folder: Path
+    model: dict[str, torch.Tensor] = field(default_factory=dict)
+    optimizer: dict = field(default_factory=dict)
+    workers: dict[int, list] = field(default_factory=dict)
+    pending_evaluations: list[tuple[int, dict]] = field(default_factory=list)
     flags: Any = None
+    document: dict = field(default_factory=dict, repr=False)
+    table: dict[str, Entry] = field(default_factory=dict, repr=False)
+    data: bytes = field(default=b"", repr=False)
 
 
-def open_checkpoint(path: str, flag: str | None = None) -> Checkpoint:
-    """The gate: the checkpoint at path read once (read_checkpoint) and checked: every field
-    there with its type, the script a name of agents/ or agents/future_work/, the env an id the
-    scripts accept, its flags' sizes within FLAG_BOUNDS, a network of finite real weights.
-    Else a one-line UsageError naming what is wrong."""
-    return checked(read_checkpoint(path, flag), path)
-
-
-def checked(raw: dict, path: str) -> Checkpoint:
-    """open_checkpoint's checks of a checkpoint read safely from path (read_checkpoint)."""
-    problem = malformed(raw)
-    if problem is not None:
-        raise UsageError(f"checkpoint {path!r} is malformed: {problem}")
+def open_checkpoint(path: str, flag: str | None = None, data: bytes | None = None) -> Checkpoint:
+    """The gate: the checkpoint at path read once (read_checkpoint) and checked: the script a
+    name of agents/ or agents/future_work/, the env an id the scripts accept, its flags' sizes
+    within FLAG_BOUNDS. Else a one-line UsageError naming what is wrong. (`data`: the file's
+    bytes, read already.)"""
+    raw, table, data = read_checkpoint(path, flag, data)
     if raw["script"] and not SCRIPT_NAME.fullmatch(raw["script"]):
         raise UsageError(
             f"checkpoint {path!r} names the script {raw['script']!r}, not an agent script "
             "(agents/a3c_*.py or agents/future_work/a3c_*.py by file name)"
         )
     env = raw["args"].get("env")
-    problem = env_problem(env)
+    problem = "no env" if not isinstance(env, str) else env_problem(env)
     if problem is not None:
         raise UsageError(f"checkpoint {path!r} holds the env {env!r}: {problem}")
-    problem = size_problem(raw["args"])
-    if problem is not None:
-        raise UsageError(f"checkpoint {path!r} asks for {problem}")
-    for part, tensors in (("network", raw["model"]),
-                          *(("network of a pending evaluation", theta)
-                            for _, theta in raw["pending_evaluations"])):  # fmt: skip
-        problem = weights_problem(tensors)
-        if problem is not None:
-            raise UsageError(f"checkpoint {path!r}: the {part} {problem}")
+    for name, (low, high) in FLAG_BOUNDS.items():
+        value = raw["args"].get(name, low)  # (a flag newer than the checkpoint: its default)
+        if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
+            raise UsageError(f"checkpoint {path!r} asks for --{name.replace('_', '-')} "
+                             f"{value!r} (valid: {low} to {high:,})")  # fmt: skip
     return Checkpoint(
         path=path, script=raw["script"], env=env, args=raw["args"],
-        global_step=raw["global_step"], wall_time=float(raw["wall_time"]),
-        optimizer_name=raw["optimizer_name"], model=raw["model"], optimizer=raw["optimizer"],
-        workers=raw["workers"],
-        pending_evaluations=[(step, theta) for step, theta in raw["pending_evaluations"]],
-        run_folder=Path(path).resolve().parent,
+        global_step=raw["global_step"], wall_time=raw["wall_time"],
+        optimizer_name=raw["optimizer_name"], run_folder=Path(path).resolve().parent,
+        document=raw, table=table, data=data,
     )  # fmt: skip
-
-
-def malformed(raw: dict) -> str | None:
-    """What is missing or of the wrong type in a checkpoint's fields, or None."""
-    for key, kind in FIELDS.items():
-        if key not in raw:
-            return f"it has no {key!r}"
-        value = raw[key]
-        if not isinstance(value, kind) or isinstance(value, bool):
-            return f"its {key!r} is a {type(value).__name__}"
-    if raw["global_step"] < 0 or not (0 <= raw["wall_time"] < math.inf):
-        return "its 'global_step' or 'wall_time' is negative or not finite"
-    if not all(isinstance(k, str) for k in raw["args"]) or not isinstance(
-        raw["args"].get("env"), str
-    ):
-        return "its 'args' are not flags by name with an 'env'"
-    if not raw["model"] or not all(
-        isinstance(k, str) and torch.is_tensor(v) for k, v in raw["model"].items()
-    ):
-        return "its 'model' is not a network's tensors by name"
-    if not all(isinstance(worker_id, int) and isinstance(states, (list, tuple))
-               for worker_id, states in raw["workers"].items()):  # fmt: skip
-        return "its 'workers' are not each worker's state by its number"
-    shapes = {name: tensor.shape for name, tensor in raw["model"].items()}
-    for request in raw["pending_evaluations"]:
-        if not (isinstance(request, (list, tuple)) and len(request) == 2
-                and isinstance(request[0], int) and isinstance(request[1], dict)
-                and all(torch.is_tensor(v) for v in request[1].values())
-                and {k: v.shape for k, v in request[1].items()} == shapes):  # fmt: skip
-            return "its 'pending_evaluations' are not (step, its network) pairs"
-    complex_part = next((key for key in raw if any_complex(raw[key])), None)
-    if complex_part is not None:  # loaded into a real network, its imaginary part would be lost
-        return f"its {complex_part!r} holds a complex-valued tensor"
-    return None
-
-
-def any_complex(value: Any) -> bool:
-    """Whether a complex tensor is anywhere in value (through dicts, lists and tuples)."""
-    if torch.is_tensor(value):
-        return value.is_complex()
-    if isinstance(value, dict):
-        return any(any_complex(item) for item in value.values())
-    if isinstance(value, (list, tuple)):
-        return any(any_complex(item) for item in value)
-    return False
 
 
 def env_problem(env_id: str) -> str | None:
@@ -393,27 +182,6 @@ def env_problem(env_id: str) -> str | None:
 CATCH_ENTRY_POINT = "catch_env.catch:CatchEnv"
 
 
-def size_problem(args: dict) -> str | None:
-    """`--flag VALUE (valid: ...)` for a flag of args that names a count or size out of
-    FLAG_BOUNDS (or is not a whole number), or None."""
-    for name, bound in FLAG_BOUNDS.items():
-        if name not in args:
-            continue  # a flag newer than the checkpoint: its default
-        value = args[name]
-        if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= bound:
-            return f"--{name.replace('_', '-')} {value!r} (valid: 1 to {bound:,})"
-    return None
-
-
-def weights_problem(tensors: dict) -> str | None:
-    """What is wrong with a network's tensors: one not finite (NaN or inf: a run that
-    diverged), or None."""
-    for name, tensor in tensors.items():
-        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
-            return f"has non-finite weights (NaN or inf in {name}: the run diverged)"
-    return None
-
-
 def load_checkpoint(path: str, agent: Any, flag: str | None = None) -> Checkpoint:
     """The gate for a script: a checkpoint of this script (open_checkpoint, then for_agent), or
     a one-line UsageError saying what is wrong with it."""
@@ -422,8 +190,9 @@ def load_checkpoint(path: str, agent: Any, flag: str | None = None) -> Checkpoin
 
 def for_agent(checkpoint: Checkpoint, agent: Any) -> Checkpoint:
     """A checkpoint that passed open_checkpoint, checked as agent's: written by agent.script
-    (or before the name was stored), its flags of the script's types; with `flags` set to the
-    run's Args. UsageError otherwise."""
+    (or before the name was stored), its flags of the script's types, its tensors those of the
+    network its flags build; with `flags` set to the run's Args and its tensors read.
+    UsageError otherwise."""
     path, script = checkpoint.path, checkpoint.script
     moved = moved_script(checkpoint)
     if moved is not None:
@@ -438,8 +207,6 @@ def for_agent(checkpoint: Checkpoint, agent: Any) -> Checkpoint:
             f"checkpoint {path!r} was written by {script}, not {agent.script}: "
             f"use python agents/{script}"
         )
-    # (every script's network class is ActorCritic, so the stored "network" name tells nothing;
-    # the script name above, or the tensors' shapes in load_network, refuse another's checkpoint)
     trained = agent.trained_args(checkpoint)
     hints = typing.get_type_hints(agent.Args)
     for name, value in trained.items():
@@ -454,7 +221,80 @@ def for_agent(checkpoint: Checkpoint, agent: Any) -> Checkpoint:
         flags = agent.Args(**{k: v for k, v in trained.items() if k in known})
     except (TypeError, ValueError) as e:
         raise UsageError(f"checkpoint {path!r} has other flags than this script: {e}") from e
-    return replace(checkpoint, flags=flags)
+    problem = fit_problem(expected_table(agent, flags, checkpoint), checkpoint.table)
+    if problem is not None:  # before a tensor is read
+        raise UsageError(f"checkpoint {path!r} does not fit this network{problem}")
+    tensors = read_tensors(checkpoint.data, checkpoint.document, path)
+    return replace(checkpoint, **tensors, data=b"", flags=flags)
+
+
+def expected_table(agent: Any, flags: Any, checkpoint: Checkpoint) -> dict[str, tuple]:
+    """The (dtype, shape) of each tensor a checkpoint of these flags holds: those of the network
+    they build, on torch's meta device (nothing allocated), its optimizer statistics, each
+    pending evaluation's network and each worker's frames, Catch state and LSTM state."""
+    from catch_env.wrappers import is_atari
+
+    path, envs = checkpoint.path, flags.envs_per_worker
+    try:
+        with torch.device("meta"):
+            network = agent.network(actions_of(agent.make_env, checkpoint.env), flags)
+            carried = network.initial_state(envs) if hasattr(network, "initial_state") else ()
+    except UsageError as e:
+        raise UsageError(f"checkpoint {path!r}: {e}") from None
+    except (RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:
+        raise UsageError(
+            f"checkpoint {path!r}: its flags build no network ({problem_of(e)})"
+        ) from None
+    model = {k: (DTYPE_NAMES.get(v.dtype), tuple(v.shape)) for k, v in network.state_dict().items()}
+    table = {f"model/{k}": v for k, v in model.items()}
+    params = [(DTYPE_NAMES.get(p.dtype), tuple(p.shape)) for p in network.parameters()]
+    adam = checkpoint.optimizer_name == "adam"
+    for stat in ("exp_avg", "exp_avg_sq") if adam else ("square_avg",):
+        table.update({f"optimizer/{stat}/{i}": p for i, p in enumerate(params)})
+    if adam:
+        table["optimizer/step_count"] = ("F64", (1,))
+    for k in range(len(checkpoint.document["pending_steps"])):
+        table.update({f"pending/{k}/{name}": v for name, v in model.items()})
+    for worker_id, worker in checkpoint.document["workers"].items():
+        prefix = f"workers/{worker_id}"
+        table[f"{prefix}/frames"] = ("U8", (envs, *OBSERVATION_SHAPE))
+        table.update({f"{prefix}/lstm/{j}": (DTYPE_NAMES.get(s.dtype), tuple(s.shape))
+                      for j, s in enumerate(carried)})  # fmt: skip
+        if worker["env"] is not None:  # Catch's, one generator per env
+            if len(worker["env"]) != envs or is_atari(checkpoint.env):
+                raise UsageError(f"checkpoint {path!r} is malformed: worker {worker_id}'s env "
+                                 f"state is not that of {envs} Catch envs")  # fmt: skip
+            table.update({f"{prefix}/env/{name}": (dtype, (envs, *shape))
+                          for name, (dtype, shape) in catch_layout().items()})  # fmt: skip
+    return table
+
+
+@functools.lru_cache(maxsize=64)
+def actions_of(make_env: Any, env_id: str) -> int:
+    return probe_env(make_env, env_id)
+
+
+def fit_problem(expected: dict[str, tuple], table: dict[str, Entry]) -> str | None:
+    """How the tensor table differs from the expected one, or None: the network's first, as
+    load_state_dict says it (a size mismatch, then the names missing and unexpected)."""
+    have = {name: (entry.dtype, tuple(entry.shape)) for name, entry in table.items()}
+    for part in ("model/", ""):
+        want = {n: v for n, v in expected.items() if n.startswith(part)}
+        got = {n: v for n, v in have.items() if n.startswith(part)}
+        for name in want:
+            if name in got and got[name] != want[name]:
+                shown = name.removeprefix("model/")
+                return f": size mismatch for {shown}: {got[name]} in it, {want[name]} here"
+        problems = []
+        for kind, names in (("missing", [n for n in want if n not in got]),
+                            ("unexpected", [n for n in got if n not in want])):  # fmt: skip
+            names = [name.removeprefix("model/") for name in names]
+            if names:
+                more = " ..." if len(names) > 4 else ""
+                problems.append(f"{kind}: {', '.join(names[:4])}{more}")
+        if problems:
+            return " (is it another script's?): " + "; ".join(problems)
+    return None
 
 
 def of_type(value: Any, hint: Any) -> bool:
@@ -487,6 +327,16 @@ def moved_script(checkpoint: Checkpoint) -> tuple[str, str, Any] | None:
         if checkpoint.args.get(flag) == value:
             return owner, flag, value
     return None
+
+
+def checkpoint_step(path: Path, agent: Any = None) -> int | None:
+    """The global step of a checkpoint that passes the gate (open_checkpoint; load_checkpoint
+    as agent's, given one), else None."""
+    try:
+        checkpoint = open_checkpoint(str(path))
+        return (checkpoint if agent is None else for_agent(checkpoint, agent)).global_step
+    except UsageError:
+        return None
 
 
 def load_network(model: nn.Module, checkpoint: Checkpoint, path: str | None = None) -> None:

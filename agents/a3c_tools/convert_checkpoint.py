@@ -1,54 +1,112 @@
-"""A checkpoint from before checkpoints were safe to load, converted into the safe form, on its
+"""A checkpoint of the older format (a torch zip: v1 or v2, sealed or not) converted into the
+current one (safetensors with a declared document, a3c_runtime.checkpoint_file), on its
 owner's explicit request:
 
     python -m a3c_tools.convert_checkpoint runs/<run>/checkpoint.pt
 
-The agent scripts and the tools load a checkpoint only with `torch.load(weights_only=True)`,
-which builds tensors, numbers, strings, lists, tuples and dicts and runs no code; they refuse
-an older checkpoint (format v1, whose workers' states are pickled, or one without a seal),
-naming this command. This command reads the checkpoint the same safe way, and then unpickles
-the workers' states a v1 checkpoint holds (a one-worker Catch run's): the one place in the
-project that unpickles a file, so that part runs whatever it holds; convert only a checkpoint
-you trust (your own runs). It writes the same
-network, optimizer statistics, step, flags and evaluations not taken yet, each worker's state in
-the safe form (a3c_runtime.snapshots.saved_state), sealed; checks that the result loads safely;
-and replaces the file atomically (the old one stays until the new one is whole), or writes
---out.
+The agent scripts and the tools read only the current format; they refuse an older one, naming
+this command. This command checks the zip (every member's CRC, the sizes its members declare,
+its seal if it has one), loads it with `torch.load(weights_only=True)`, which builds tensors,
+numbers, strings, lists, tuples and dicts and runs no code, and reads each field it knows by
+name (no walk through what a field holds), refusing anything the current format cannot hold.
+A v1 checkpoint's worker states are pickled: they are unpickled, the one place in the project
+that unpickles a file, so convert only a checkpoint you trust (your own runs). What it writes
+passes the gate of the script that wrote it before it replaces the file atomically (the old one
+stays until the new one is whole), or is written to --out.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import io
 import pickle
+import struct
 import sys
+import zipfile
 from pathlib import Path
 from typing import Any
 
 from a3c_tools import AGENTS, agent_scripts, load_script, run_main
 
+OLD_FORMATS = ("a3c-checkpoint-v1", "a3c-checkpoint-v2")  # v1: its worker states pickled
+# the older format's seal: the zip's comment holds the SHA-256 of every byte before it
+SEAL_PREFIX = b"a3c-sha256:"
+END_OF_ARCHIVE = b"PK\x05\x06"  # the end-of-central-directory record: 22 bytes + the comment
 
-def converted(checkpoint: dict) -> dict:
-    """The safe form of a trusted, loaded checkpoint (any format this project wrote)."""
-    from a3c_runtime.checkpoints import CHECKPOINT_FORMAT
+
+def seal(archive: bytes) -> bytes:
+    """A zip torch.save wrote, with the SHA-256 of its bytes as its comment (the older format's
+    seal; tests write such checkpoints with it)."""
+    if archive[-22:-18] != END_OF_ARCHIVE or archive[-2:] != b"\x00\x00":
+        raise ValueError("the archive does not end in a comment-less end-of-central-directory")
+    length = len(SEAL_PREFIX) + hashlib.sha256().digest_size * 2
+    head = archive[:-2] + struct.pack("<H", length)  # the comment's length is sealed too
+    return head + SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode()
+
+
+def zip_problem(data: bytes) -> str | None:
+    """What is wrong with the older format's bytes, or None: not a whole zip, members declaring
+    more bytes than the file (torch stores them uncompressed), a CRC that fails, no data.pkl, a
+    seal that does not match."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            declared = sum(member.file_size for member in archive.infolist())
+            if declared > len(data):
+                return f"its members declare {declared:,} bytes, more than the {len(data):,} it has"
+            bad_member = archive.testzip()  # reads every member, checking its CRC
+            comment, names = archive.comment, archive.namelist()
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, ValueError) as e:
+        return f"not a whole zip archive ({e})"
+    if bad_member is not None:
+        return f"{bad_member} fails its CRC check"
+    if not any(name.endswith("/data.pkl") for name in names):
+        return "not a torch file (a zip archive without data.pkl)"
+    head = data[: len(data) - len(comment)]
+    if comment and comment != SEAL_PREFIX + hashlib.sha256(head).hexdigest().encode():
+        return "its bytes do not match the SHA-256 it was written with"
+    return None
+
+
+def converted(old: Any) -> dict:
+    """The fields of an older checkpoint (torch.load's dict), each read by name and of the form
+    save_checkpoint hands on; ValueError naming what is not."""
+    from a3c_runtime.checkpoint_file import MAX_PENDING
+    from a3c_runtime.checkpoints import MAX_WORKERS
     from a3c_runtime.snapshots import saved_state
 
-    workers = {}
-    for worker_id, states in (checkpoint.get("workers") or {}).items():
-        if checkpoint.get("format") == CHECKPOINT_FORMAT:  # data already (an unsealed v2)
-            workers[int(worker_id)] = states
-            continue
-        # the one place that unpickles: v1's worker states, on their owner's request
-        parts = tuple(pickle.loads(state) if isinstance(state, bytes) else None for state in states)
-        workers[int(worker_id)] = saved_state(parts)
-    return {**checkpoint, "format": CHECKPOINT_FORMAT, "script": checkpoint.get("script", ""),
-            "workers": workers,
-            "pending_evaluations": list(checkpoint.get("pending_evaluations", []))}  # fmt: skip
+    if not isinstance(old, dict) or old.get("format") not in OLD_FORMATS:
+        raise ValueError("it is not a checkpoint written by the agent scripts")
+    pending, workers = old.get("pending_evaluations", []), old.get("workers") or {}
+    if not isinstance(pending, (list, tuple)) or len(pending) > MAX_PENDING:
+        raise ValueError(f"its pending evaluations are not a list of at most {MAX_PENDING:,}")
+    if not isinstance(workers, dict) or len(workers) > MAX_WORKERS:
+        raise ValueError(f"its workers are not a dict of at most {MAX_WORKERS:,}")
+    states = {}
+    for worker_id, state in workers.items():
+        if not isinstance(state, (list, tuple)) or len(state) not in (3, 4):
+            raise ValueError(f"worker {worker_id!r}'s state is not a worker's")
+        if old["format"] == "a3c-checkpoint-v1":  # on its owner's request (the module docstring)
+            state = saved_state(tuple(pickle.loads(s) if isinstance(s, bytes) else None
+                                      for s in state))  # fmt: skip
+        states[worker_id] = list(state)
+    for request in pending:
+        if not isinstance(request, (list, tuple)) or len(request) != 2:
+            raise ValueError("a pending evaluation is not a (step, network) pair")
+    return {
+        **{
+            key: old[key]
+            for key in ("model", "optimizer", "optimizer_name", "global_step", "wall_time", "args")
+        },  # fmt: skip
+        "script": old.get("script", ""),
+        "workers": states,
+        "pending_evaluations": [tuple(request) for request in pending],
+    }
 
 
 def checked_by_its_script(checkpoint: Any) -> None:
-    """The gate's checks of a checkpoint's flags by the script that wrote it, where that script
-    is one of this clone's (a3c_runtime.checkpoints.for_agent); UsageError if they fail."""
+    """The gate's checks of a checkpoint by the script that wrote it, where that script is one
+    of this clone's (a3c_runtime.checkpoints.for_agent); UsageError if they fail."""
     from a3c_runtime.checkpoints import for_agent
 
     if checkpoint.script in agent_scripts():
@@ -57,37 +115,29 @@ def checked_by_its_script(checkpoint: Any) -> None:
 
 def convert(path: str, out: str) -> str:
     """Convert the checkpoint at path into out (which may be path); the line to print (one in
-    the safe form already is left as it is). UsageError if it is corrupt or not a checkpoint."""
+    the current format already is left as it is). UsageError if it is corrupt, not a checkpoint,
+    or holds what the current format cannot."""
     import torch
     from a3c_runtime import UsageError
     from a3c_runtime.checkpoints import (
-        NO_SEAL,
-        UNSAFE_FORMATS,
         WriteFailed,
         check_checkpoint_path,
-        checked,
+        encode,
         open_checkpoint,
-        read_checkpoint,
-        seal,
-        verify_checkpoint,
+        problem_of,
         write_atomically,
     )
 
     check_checkpoint_path(path)
     data = Path(path).read_bytes()
-    problem = verify_checkpoint(data)
-    if problem not in (None, NO_SEAL):
+    if data[:2] != b"PK":  # not a zip: the current format, or nothing of ours
+        checked_by_its_script(open_checkpoint(path, data=data))
+        return f"{path} is in the current format already: nothing to do"
+    problem = zip_problem(data)
+    if problem is not None:
         raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
-    if problem is None:
-        try:
-            read_checkpoint(path)
-        except UsageError:
-            pass  # an older format, or unsafe: converted below
-        else:
-            checked_by_its_script(open_checkpoint(path))  # a malformed one is refused all the same
-            return f"{path} is in the safe form already: nothing to do"
     try:  # the checkpoint itself is data in every format; only v1's worker states are pickles
-        checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+        old = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:
         lines = str(e).strip().splitlines()
         detail = next((line.strip() for line in lines if "Unsupported" in line), lines[0])
@@ -96,39 +146,26 @@ def convert(path: str, out: str) -> str:
             f"not converted"
         ) from None
     except Exception as e:
-        detail = (str(e).strip().splitlines() or [type(e).__name__])[0]
-        raise UsageError(f"checkpoint {path!r} is corrupt or not a torch file: {detail}") from e
-    if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get("global_step"), int):
-        raise UsageError(f"{path!r} is not a checkpoint written by the agent scripts")
-    old_format = checkpoint.get("format")
+        raise UsageError(
+            f"checkpoint {path!r} is corrupt or not a torch file: {problem_of(e)}"
+        ) from None
     try:
-        safe = converted(checkpoint)
-    except (AttributeError, TypeError, ValueError) as e:
-        raise UsageError(f"checkpoint {path!r} is malformed: {e}") from None
-    buffer = io.BytesIO()
-    torch.save(safe, buffer)
-    sealed = seal(buffer.getvalue())
-    try:  # what is written must load safely, and pass the gate
-        safe = torch.load(io.BytesIO(sealed), map_location="cpu", weights_only=True)
-        checked_by_its_script(checked(safe, path))
-    except pickle.UnpicklingError as e:
-        detail = (str(e).strip().splitlines() or [""])[0]
-        raise UsageError(f"checkpoint {path!r} holds what has no safe form: {detail}") from None
+        new = encode(converted(old))
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError,
+            RecursionError, pickle.UnpicklingError) as e:  # fmt: skip
+        raise UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}") from None
+    checked_by_its_script(open_checkpoint(path, data=new))  # what is written passes the gate
     try:
-        write_atomically(Path(out), sealed)
+        write_atomically(Path(out), new)
     except WriteFailed as e:
         raise UsageError(str(e)) from None
-    was = old_format if old_format in UNSAFE_FORMATS else f"{old_format}, unsealed"
-    return (
-        f"converted {path} ({was}, step {int(checkpoint['global_step']):,}) -> {out}: it "
-        f"loads safely now"
-    )
+    return f"converted {path} ({old['format']}, step {old['global_step']:,}) -> {out}"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("checkpoint", help="a checkpoint.pt you trust, from before safe loading")
-    parser.add_argument("-o", "--out", help="write the safe form here (default: in place)")
+    parser.add_argument("checkpoint", help="a checkpoint.pt of the older format that you trust")
+    parser.add_argument("-o", "--out", help="write the current format here (default: in place)")
     args = parser.parse_args(argv)
     from a3c_runtime import UsageError
 

@@ -1,0 +1,399 @@
+"""The checkpoint file: one safetensors file (run folders name it checkpoint.pt, as ever).
+Its tensors are flat, dense and declared (name, dtype, shape) in a header of bounded size;
+everything else is one small JSON document in the header's metadata, validated against a
+declared schema (`Document`: every field typed and bounded, unknown fields refused); the file
+is sealed with the SHA-256 of its bytes. Such a file holds no code, no nesting, no views and no
+shared or cyclic references, so none needs a check; what it can hold is checked here (the
+header, the seal, the document) and by the gate (a3c_runtime.checkpoints: the tensor table
+against the network the flags build) before a tensor is read. Written atomically. The seal
+guards against accidents (a flipped bit, a truncated copy), not against someone: anyone can
+recompute it."""
+
+import contextlib
+import functools
+import hashlib
+import json
+import math
+import os
+import shlex
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import torch
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+from .flags import UsageError
+
+CHECKPOINT_FORMAT = "a3c-checkpoint-v3"  # safetensors with a declared document
+MAX_HEADER = 16 << 20  # bytes of the JSON header (tensor table and document), read before all
+MAX_STEP = 10**13
+MAX_PENDING, MAX_WORKERS, MAX_ENVS = 10_000, 1024, 4096
+DTYPES = {"F64": torch.float64, "F32": torch.float32, "BF16": torch.bfloat16,
+          "F16": torch.float16, "I64": torch.int64, "I32": torch.int32, "I16": torch.int16,
+          "I8": torch.int8, "U8": torch.uint8, "BOOL": torch.bool}  # fmt: skip
+DTYPE_NAMES = {dtype: name for name, dtype in DTYPES.items()}
+SEAL = "0" * 64  # the seal's place in the header while the SHA-256 is computed
+
+
+# ------------------------------------------------------------------------------------------------
+# The schema: every field of the document with its type and bounds; nothing else is accepted
+# ------------------------------------------------------------------------------------------------
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+
+def below_2_128(text: str) -> str:
+    if int(text) >= 1 << 128:
+        raise ValueError("not below 2**128")
+    return text
+
+
+Uint128 = Annotated[str, Field(pattern=r"^(0|[1-9][0-9]{0,38})$"), AfterValidator(below_2_128)]
+Step = Annotated[int, Field(ge=0, le=MAX_STEP)]
+
+
+class PCG64Words(Strict):
+    state: Uint128  # decimal strings: JSON numbers beyond 2**53 are not portable
+    inc: Uint128
+
+
+class PCG64(Strict):
+    """A NumPy PCG64 generator's `bit_generator.state`."""
+
+    bit_generator: Literal["PCG64"]
+    state: PCG64Words
+    has_uint32: Annotated[int, Field(ge=0, le=1)]
+    uinteger: Annotated[int, Field(ge=0, lt=1 << 32)]
+
+
+class Worker(Strict):
+    """What a checkpoint keeps of a worker beside its tensors (frames, Catch's arrays, an LSTM's
+    state): its generator, and its Catch envs' generators (None: no env state, as on Atari)."""
+
+    generator: PCG64
+    env: Annotated[list[PCG64], Field(min_length=1, max_length=MAX_ENVS)] | None
+
+
+def flag_value(value: Any) -> Any:
+    """A flag's value: a bool, a whole number of 64 bits, a finite number, a string, None."""
+    if value is None or isinstance(value, bool) or (isinstance(value, str) and len(value) < 4096):
+        return value
+    if isinstance(value, int) and -(1 << 63) <= value < 1 << 63:
+        return value
+    if isinstance(value, float) and math.isfinite(value):
+        return value
+    raise ValueError("not a bool, a 64-bit whole number, a finite number, a short string or null")
+
+
+class Document(Strict):
+    """Everything of a checkpoint but its tensors."""
+
+    format: Literal["a3c-checkpoint-v3"]
+    script: Annotated[str, Field(max_length=4096)]
+    optimizer_name: Literal["rmsprop", "adam"]
+    global_step: Step
+    wall_time: Annotated[float, Field(ge=0, le=1e12)]
+    args: Annotated[
+        dict[Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,63}$")],
+             Annotated[Any, AfterValidator(flag_value)]],
+        Field(max_length=512),
+    ]  # fmt: skip
+    pending_steps: Annotated[list[Step], Field(max_length=MAX_PENDING)]
+    workers: Annotated[
+        dict[Annotated[str, Field(pattern=r"^(0|[1-9][0-9]{0,2}|10[01][0-9]|102[0-3])$")], Worker],
+        Field(max_length=MAX_WORKERS),
+    ]
+
+
+class Entry(Strict):
+    """A tensor in safetensors' header."""
+
+    dtype: Literal[tuple(DTYPES)]  # type: ignore[valid-type]
+    shape: Annotated[list[Annotated[int, Field(ge=0, le=1 << 40)]], Field(max_length=8)]
+    data_offsets: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=2, max_length=2)]
+
+
+class Metadata(Strict):
+    a3c: str
+    sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
+
+
+TensorName = Annotated[str, Field(pattern=r"^(model|optimizer|pending/\d{1,5}|workers/\d{1,4})/"
+                                          r"[A-Za-z0-9_./]{1,200}$")]  # fmt: skip
+TENSOR_TABLE = TypeAdapter(dict[TensorName, Entry])
+
+
+# ------------------------------------------------------------------------------------------------
+# Writing
+# ------------------------------------------------------------------------------------------------
+def encode(raw: dict, checked: bool = True) -> bytes:
+    """The file of a checkpoint's fields (save_checkpoint's `raw`; any other key goes into the
+    document as it is). ValueError for what the format cannot hold: a view of more than its
+    storage, tensors sharing storage, a worker state of another form, a document the schema
+    refuses (checked=False, for tests: written as it is)."""
+    tensors = {f"model/{k}": v for k, v in raw["model"].items()}
+    for key, value in raw["optimizer"].items():
+        for i, tensor in enumerate(value if isinstance(value, list) else [value]):
+            tensors[f"optimizer/{key}" + (f"/{i}" if isinstance(value, list) else "")] = tensor
+    for k, (_, theta) in enumerate(raw["pending_evaluations"]):
+        tensors.update({f"pending/{k}/{name}": tensor for name, tensor in theta.items()})
+    workers = {}
+    for worker_id, parts in raw["workers"].items():
+        generator, env, frames, *carried = parts
+        prefix = f"workers/{worker_id}"
+        tensors[f"{prefix}/frames"] = frames
+        for j, tensor in enumerate(carried[0] if carried else ()):
+            tensors[f"{prefix}/lstm/{j}"] = tensor  # (an LSTM's carried state)
+        if env is not None:
+            for name in catch_layout():
+                tensors[f"{prefix}/env/{name}"] = part_at(env["env"], name)
+        rngs = None if env is None else [pcg64(s) for s in env["env"]["env"]["rngs"]]
+        workers[str(worker_id)] = {"generator": pcg64(generator["bit_generator"]), "env": rngs}
+    storages = set()
+    for name, tensor in tensors.items():
+        dense = tensor.layout == torch.strided and tensor.dtype in DTYPE_NAMES
+        if not dense or tensor.numel() * tensor.element_size() > storage_bytes(tensor):
+            raise ValueError(f"{name} is not a dense tensor of a safetensors dtype")
+        if storage_bytes(tensor) and tensor.untyped_storage().data_ptr() in storages:
+            raise ValueError(f"{name} shares its storage with another tensor")
+        storages.add(tensor.untyped_storage().data_ptr())
+    parts = ("model", "optimizer", "pending_evaluations", "workers", "format", "pending_steps")
+    document = {"format": CHECKPOINT_FORMAT, **{k: v for k, v in raw.items() if k not in parts},
+                "pending_steps": [step for step, _ in raw["pending_evaluations"]],
+                "workers": workers}  # fmt: skip
+    if checked:  # (before json.dumps, which would walk whatever a field holds)
+        Document.model_validate(document)
+    return sealed({k: v.detach().cpu().contiguous() for k, v in tensors.items()}, document)
+
+
+def sealed(tensors: dict[str, torch.Tensor], document: dict) -> bytes:
+    """The safetensors file of tensors and the document, with the SHA-256 of its bytes (those
+    of the seal's place zeros) in the header."""
+    import safetensors.torch
+
+    text = json.dumps(document, separators=(",", ":"))
+    data = safetensors.torch.save(tensors, metadata={"a3c": text, "sha256": SEAL})
+    end = 8 + int.from_bytes(data[:8], "little")
+    digest = hashlib.sha256(data).hexdigest()
+    return data[:end].replace(seal_field(SEAL), seal_field(digest), 1) + data[end:]
+
+
+def seal_field(digest: str) -> bytes:
+    return f'"sha256":"{digest}"'.encode()
+
+
+def pcg64(state: dict) -> dict:
+    """A PCG64 state in the document's form (its 128-bit words as decimal strings)."""
+    words = {k: str(state["state"][k]) for k in ("state", "inc")}
+    return {**state, "state": words}
+
+
+def storage_bytes(tensor: torch.Tensor) -> int:
+    return tensor.untyped_storage().nbytes() - tensor.storage_offset() * tensor.element_size()
+
+
+@functools.cache
+def catch_layout() -> dict[str, tuple[str, tuple[int, ...]]]:
+    """The arrays of a Catch vector env's state (catch_env.wrappers' get_state, its generators
+    apart) by path, with their dtypes and their shapes after the leading one (the env count)."""
+    from catch_env.wrappers import make_vector_env
+
+    envs = make_vector_env("Catch-v0", 1)
+    envs.reset(seed=0)
+    layout, todo = {}, [("", envs.get_state())]
+    while todo:
+        path, value = todo.pop()
+        if isinstance(value, dict):
+            todo += [(f"{path}{k}/", v) for k, v in value.items() if k != "rngs"]
+        elif isinstance(value, list):
+            todo += [(f"{path}{i}/", v) for i, v in enumerate(value)]
+        else:
+            layout[path[:-1]] = (DTYPE_NAMES[torch.from_numpy(value).dtype], value.shape[1:])
+    return dict(sorted(layout.items()))
+
+
+def part_at(state: dict, path: str) -> Any:
+    for key in path.split("/"):
+        state = state[int(key) if isinstance(state, list) else key]
+    return state
+
+
+def check_checkpoint_path(path: str, flag: str | None = None) -> None:
+    """UsageError unless path is a file: a missing path, or a folder (naming the checkpoint in
+    it, if it holds one, as `flag PATH`)."""
+    if os.path.isdir(path):
+        inside = os.path.join(path, "checkpoint.pt")
+        if os.path.isfile(inside):
+            command = f"{flag} {inside}" if flag else inside
+            raise UsageError(f"checkpoint {path!r} is a folder: pass its checkpoint, {command}")
+        raise UsageError(f"checkpoint {path!r} is a folder, and holds no checkpoint.pt")
+    if not os.path.isfile(path):
+        raise UsageError(f"checkpoint {path!r} does not exist")
+
+
+def convert_command(path: str) -> str:
+    """The command that converts a checkpoint of the older format that its owner trusts."""
+    return shlex.join(["python", "-m", "a3c_tools.convert_checkpoint", path])
+
+
+def read_checkpoint(
+    path: str, flag: str | None = None, data: bytes | None = None
+) -> tuple[dict, dict[str, Entry], bytes]:
+    """(the document, the tensor table, the bytes) of the checkpoint at path (or of its bytes,
+    `data`): its header bounded, its seal verified, its document validated by the schema, its
+    table consistent with its bytes; no tensor read. Else a one-line UsageError."""
+    if data is None:
+        check_checkpoint_path(path, flag)
+        try:
+            data = Path(path).read_bytes()  # read once: what is verified is what is loaded
+        except OSError as e:
+            raise UsageError(f"cannot read checkpoint {path!r}: {e.strerror or e}") from e
+    if data[:2] == b"PK":  # a zip: torch.save's, the format before this one
+        raise UsageError(
+            f"checkpoint {path!r} is of the older format (a torch zip), which is not loaded; if "
+            f"you trust it, convert it: {convert_command(path)}"
+        )
+    size = int.from_bytes(data[:8], "little")
+    if len(data) < 8 or size > min(MAX_HEADER, len(data) - 8):
+        raise UsageError(f"checkpoint {path!r} is corrupt or not a checkpoint: its header "
+                         f"declares {size:,} bytes (the file has {len(data):,})")  # fmt: skip
+    try:
+        header = json.loads(data[8 : 8 + size])
+        if not isinstance(header, dict) or not isinstance(header.get("__metadata__"), dict):
+            raise UsageError(f"{path!r} is not a checkpoint written by the agent scripts")
+        metadata = Metadata.model_validate(header.pop("__metadata__"))
+        table = TENSOR_TABLE.validate_python(header)
+    except (ValueError, RecursionError, AttributeError, KeyError, TypeError) as e:
+        raise UsageError(f"checkpoint {path!r} is corrupt or not a checkpoint: "
+                         f"{problem_of(e)}") from None  # fmt: skip
+    head = data[: 8 + size]
+    if (
+        head.count(seal_field(metadata.sha256)) != 1
+        or metadata.sha256
+        != hashlib.sha256(
+            head.replace(seal_field(metadata.sha256), seal_field(SEAL)) + data[8 + size :]
+        ).hexdigest()
+    ):
+        raise UsageError(f"checkpoint {path!r} is corrupt: its bytes do not match the SHA-256 "
+                         "it was written with")  # fmt: skip
+    end = 0
+    for name, entry in sorted(table.items(), key=lambda item: item[1].data_offsets):
+        begin, stop = entry.data_offsets
+        if begin != end or stop - begin != math.prod(entry.shape) * DTYPES[entry.dtype].itemsize:
+            raise UsageError(f"checkpoint {path!r} is corrupt: {name} is not where its header "
+                             "puts it")  # fmt: skip
+        end = stop
+    if end != len(data) - 8 - size:
+        raise UsageError(f"checkpoint {path!r} is corrupt: its tensors do not fill its bytes")
+    try:
+        document = Document.model_validate_json(metadata.a3c).model_dump()
+    except ValidationError as e:
+        raise UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}") from None
+    return document, table, data
+
+
+def problem_of(error: Exception) -> str:
+    """One line of a parse or validation error: where, and what."""
+    if isinstance(error, ValidationError):
+        first = error.errors()[0]
+        where = "/".join(str(part) for part in first["loc"])
+        return f"its {where or 'document'}: {first['msg'].split(' ' + chr(39) + '^')[0]}"
+    return (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
+
+
+def read_tensors(data: bytes, document: dict, path: str) -> dict[str, Any]:
+    """The tensors of a checkpoint's bytes (read_checkpoint's; their table already matched the
+    network's), checked (finite: NaN or inf is a run that diverged; mean squares not negative),
+    in the form the runtime holds them: `model`, `optimizer`, `workers` (each worker's state as
+    a3c_runtime.snapshots.saved_state gives it) and `pending_evaluations`."""
+    import safetensors.torch
+
+    tensors = safetensors.torch.load(data)
+    for name, tensor in tensors.items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            part, shown = NOT_FINITE[name.split("/")[0]], name.removeprefix("model/")
+            raise UsageError(f"checkpoint {path!r}: {part} (NaN or inf in {shown}: the run "
+                             "diverged)")  # fmt: skip
+        squares = ("optimizer/square_avg/", "optimizer/exp_avg_sq/", "optimizer/step")
+        if name.startswith(squares) and bool((tensor < 0).any()):
+            raise UsageError(f"checkpoint {path!r}: its optimizer statistic {name} is negative")
+    model = {n.removeprefix("model/"): t for n, t in tensors.items() if n.startswith("model/")}
+    optimizer: dict[str, Any] = {}
+    for name in sorted((n for n in tensors if n.startswith("optimizer/")), key=natural):
+        stat, _, index = name.removeprefix("optimizer/").partition("/")
+        if index:
+            optimizer.setdefault(stat, []).append(tensors[name])
+        else:
+            optimizer[stat] = tensors[name]
+    pending = [(step, {n: tensors[f"pending/{k}/{n}"] for n in model})
+               for k, step in enumerate(document["pending_steps"])]  # fmt: skip
+    workers = {}
+    for worker_id, worker in document["workers"].items():
+        prefix = f"workers/{worker_id}"
+        env = None
+        if worker["env"] is not None:  # the nested form catch_env's get_state gives
+            env = {"env": {"rngs": [generator_state(s) for s in worker["env"]]}}
+            for name in catch_layout():
+                *parents, last = f"env/{name}".split("/")
+                place = functools.reduce(lambda d, k: d.setdefault(k, {}), parents, env)
+                place[last] = tensors[f"{prefix}/env/{name}"]
+            env["env"]["env"]["drawn"] = list(env["env"]["env"]["drawn"].values())
+            env["env"]["env"]["rngs"] = env["env"].pop("rngs")
+        carried = tuple(tensors[n] for n in sorted(tensors, key=natural)
+                        if n.startswith(f"{prefix}/lstm/"))  # fmt: skip
+        parts = [{"bit_generator": generator_state(worker["generator"])}, env,
+                 tensors[f"{prefix}/frames"]] + ([carried] if carried else [])  # fmt: skip
+        workers[int(worker_id)] = parts
+    return {
+        "model": model,
+        "optimizer": optimizer,
+        "workers": workers,
+        "pending_evaluations": pending,
+    }
+
+
+NOT_FINITE = {"model": "the network has non-finite weights",
+              "optimizer": "the optimizer statistics are not finite",
+              "pending": "the network of a pending evaluation has non-finite weights",
+              "workers": "a worker's state is not finite"}  # fmt: skip
+
+
+def natural(name: str) -> list:
+    return [int(part) if part.isdigit() else part for part in name.split("/")]
+
+
+def generator_state(document: dict) -> dict:
+    """A PCG64 state from the document's form: NumPy's `bit_generator.state`."""
+    return {**document, "state": {k: int(v) for k, v in document["state"].items()}}
+
+
+class WriteFailed(Exception):
+    """A run's file could not be written (a full disk, a read-only folder, a file-size limit)."""
+
+    def __init__(self, path: Path | str, error: OSError):
+        self.path, self.error = Path(path), error
+        super().__init__(f"could not write {path}: {error.strerror or error}")
+
+
+PARTIAL_SUFFIX = ".a3c-partial"  # a name no user's file has: a run removes only its own
+
+
+def partial_path(path: Path) -> Path:
+    """The temp file write_atomically writes path's new content into before the rename."""
+    return path.with_name(path.name + PARTIAL_SUFFIX)
+
+
+def write_atomically(path: Path, data: bytes | memoryview) -> None:
+    """path's new content, all or nothing: a temp file beside it, flushed to disk, renamed over
+    it. On failure the temp file is removed and the old file is untouched: WriteFailed."""
+    tmp = partial_path(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise WriteFailed(path, e) from e
