@@ -168,7 +168,8 @@ def test_the_agents_distribution_needs_only_what_the_scripts_need() -> None:
     """matplotlib, scipy and tomli are the tools' (the `tools` extra), not the scripts'."""
     project = tomllib.loads((ROOT / "agents" / "pyproject.toml").read_text())["project"]
     names = {re.split(r"[<>=;\[ ]", d)[0] for d in project["dependencies"]}
-    assert names == {"catch-env", "torch", "tyro", "tensorboard", "numpy", "safetensors", "pydantic"}
+    scripts_need = {"catch-env", "torch", "tyro", "tensorboard", "numpy", "safetensors", "pydantic"}
+    assert names == scripts_need
     tools = {re.split(r"[<>=;\[ ]", d)[0] for d in project["optional-dependencies"]["tools"]}
     assert {"matplotlib", "scipy"} <= tools
     for script in (ROOT / "agents").glob("**/a3c_*.py"):
