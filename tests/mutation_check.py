@@ -390,6 +390,10 @@ MUTANTS = [
     Mutant("batched-cudnn-free", "cuDNN may pick nondeterministic algorithms for a batch on CUDA",
            BATCHED_BACKEND, "torch.backends.cudnn.deterministic = True",
            "torch.backends.cudnn.deterministic = False", (BATCH_T,)),
+    Mutant("batched-lone-run-alone", "a run alone in a batch computes as a batch of one, whose "
+           "kernels part from a batch of two's in the last bits", BATCHED_BACKEND,
+           "        if len(runs) == 1:\n", "        if len(runs) == 0:\n",
+           ("tests/test_batched_invariance.py", BATCH_T)),
     # --- the sweep: run i's seed and sampled flags -----------------------------------------------
     Mutant("sweep-restarts-cut-off-run", "a sweep started again runs a cut-off run from its "
            "start, not on from its checkpoint", SWEEP,

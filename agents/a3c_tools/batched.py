@@ -12,7 +12,11 @@ same evaluations (the runtime's `evaluate_network`: 50 episodes every --eval-int
 the run's episode seeds). The N networks are the script's `ActorCritic`, their parameters stacked
 (torch.func.stack_module_state) and called through torch.func.functional_call under vmap, the
 gradients by vmap(grad(loss)). tests/test_batched.py checks that run i takes the script's actions
-with its parameters to float tolerance. Only the order of floating-point sums differs.
+with its parameters to float tolerance. Only the order of floating-point sums differs. And a run
+is the same run in any batch: on the CPU its checkpoint and evaluations are bit for bit the same
+alone or beside any other runs (tests/test_batched_invariance.py), a run alone computing beside
+a copy of itself (vmap over one run takes other kernels than over two or more), so a sweep's
+restart may regroup its runs as it finds them.
 
 Each run's folder gets what the process backend writes, written by the runtime's own code: its
 lock (a3c_runtime.run_folder, taken before anything in the folder is read or changed, so a run
@@ -314,6 +318,13 @@ class BatchedA3C:
 
     def __init__(self, module: ModuleType, runs: list[BatchedRun], device: str | torch.device):
         self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
+        # A run alone computes as a batch of two, beside a copy of itself whose results are
+        # dropped: vmap over one run takes other kernels than over two or more (a grouped
+        # convolution's weight gradient, a matrix-vector product), which part in the last bits,
+        # and a run must be the same run in any batch (tests/test_batched_invariance.py)
+        self.shown = len(runs)
+        if len(runs) == 1:
+            runs = [runs[0], dataclasses.replace(runs[0], folder=None)]
         self.runs = runs
         self.args = [run.args for run in runs]
         first = self.args[0]
@@ -524,7 +535,7 @@ class BatchedA3C:
         scores = self.eval_envs.final_returns.view(n, episodes).cpu().numpy()
         seconds = (time.time() - start) / n
         return [{"global_step": self.step_count, "scores": scores[i].tolist(), "seconds": seconds}
-                for i in range(n)]  # fmt: skip
+                for i in range(self.shown)]  # fmt: skip
 
     def worker_state(self, i: int) -> tuple:
         """Run i's worker as its script's `worker_state()` gives it to a checkpoint: its
