@@ -76,7 +76,7 @@ from a3c_runtime import (
     save_checkpoint,
     seed_everything,
 )
-from a3c_runtime.evaluation import EVALUATION_STREAM
+from a3c_runtime.evaluation import evaluation_randomness
 from a3c_runtime.run_folder import LOCK_FILE, RunFolder
 from a3c_runtime.run_log import logged_steps
 from a3c_runtime.snapshots import arrays_of, next_mark, saved_state
@@ -511,10 +511,9 @@ class BatchedA3C:
         start, n, episodes = time.time(), len(self.runs), self.args[0].eval_episodes
         self.set_progress()
         seeds, generators = [], []
-        for args in self.args:  # evaluate_network's keys
-            rng = np.random.default_rng([args.seed, EVALUATION_STREAM, self.step_count])
-            seeds += rng.integers(2**31, size=episodes).tolist()
-            generators.append(torch.Generator().manual_seed(int(rng.integers(2**62))))
+        for args in self.args:  # evaluate_network's keys, from its own function
+            run_seeds, generator = evaluation_randomness(args.seed, self.step_count, episodes)
+            seeds, generators = seeds + run_seeds, [*generators, generator]
         if self.eval_envs is None or self.eval_envs.num_envs != n * episodes:
             self.eval_envs = TorchCatchVectorEnv(n * episodes, self.device)
         obs = self.eval_envs.reset(seed=seeds)
