@@ -609,7 +609,8 @@ MUTANTS = [
            'if raw["script"] and not SCRIPT_NAME.match(raw["script"]):',
            ("tests/test_safe_loading.py", CKPT)),
     Mutant("checkpoint-one-finite-weight-passes", "a network with one finite weight in each "
-           "tensor passes the gate: a NaN among finite weights is loaded", CHECKPOINTS,
+           "tensor passes the gate: a NaN among finite weights is loaded",
+           ("agents/a3c_runtime/checkpoint_file.py",),
            "and not bool(torch.isfinite(tensor).all()):",
            "and not bool(torch.isfinite(tensor).any()):", ("tests/test_safe_loading.py", CKPT)),
     # --- issue 104: --evaluate stopped by a signal, and its thread count ------------------------
@@ -621,6 +622,16 @@ MUTANTS = [
            "run's evaluations do (6x slower on a shared CPU)", EVALUATION,
            "    torch.set_num_threads(1)\n    checkpoint = load_checkpoint(",
            "    checkpoint = load_checkpoint(", (EVALUATION_T,)),
+    # --- issue 103: checkpoints as safetensors with a declared document ----------------------
+    Mutant("checkpoint-negative-mean-square-passes", "a checkpoint's RMSprop mean squares of -1 "
+           "pass the gate (the update's root of them is NaN)",
+           ("agents/a3c_runtime/checkpoint_file.py",),
+           "if name.startswith(squares) and bool((tensor < 0).any()):",
+           "if name.startswith(squares) and bool((tensor < -1).any()):",
+           ("tests/test_safe_loading.py",)),
+    Mutant("checkpoint-lstm-cells-unbounded", "a checkpoint's --lstm-cells 10**9 passes the "
+           "gate's bounds", CHECKPOINTS, '    "lstm_cells": (1, 16_384),',
+           '    "lstm_cells": (1, 10**12),', ("tests/test_safe_loading.py",)),
 ]
 # fmt: on
 
