@@ -14,7 +14,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 import tyro
-from conftest import load_script, main_exit, shared_for
+from conftest import load_script, main_exit, read_checkpoint, shared_for
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = ("a3c_lws", "a3c_ss", "a3c_ww", "a3c_lstm")
@@ -706,7 +706,7 @@ def test_lws_fixed_group_wise_centroids_resume_only_with_their_seed(tmp_path, mo
     """Fixed centroids come from --seed: resuming with another seed would silently change them."""
     flags = ["--no-lws-trainable", "--lws-centroids", "group"]
     checkpoint = saved_checkpoint("a3c_lws", tmp_path, *flags)
-    saved = torch.load(checkpoint, weights_only=True)
+    saved = read_checkpoint(checkpoint)
     assert saved["model"]["torso.0.centroids"].shape == (3, 1, 2)  # buffers, saved
     argv = [*flags, "--seed", "2", "--resume", str(checkpoint), "--total-timesteps", "1000"]
     code, err = main_exit(load_script("a3c_lws"), argv, monkeypatch, capsys)
