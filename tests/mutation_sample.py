@@ -49,7 +49,7 @@ SCRIPTS = [f"agents/a3c_{n}.py" for n in ("ff", "lws", "ss", "ww", "lstm", "lpq"
 NOT_ALGORITHM = {"Args", "make_env", "make_vector_env", "main"}
 RUNTIME = {
     "agents/a3c_runtime/hogwild.py": {
-        "annealed_lr", "clip_gradients", "SharedRMSprop", "SharedAdam", "make_optimizer",
+        "annealed_lr", "clip_gradients", "clip_stacked", "RMSprop", "SharedAdam", "make_optimizer",
         "process_seed", "seed_everything",
     },
     "agents/a3c_runtime/evaluation.py": {

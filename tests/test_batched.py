@@ -865,9 +865,9 @@ def test_a_batch_may_hold_its_files_open_past_a_low_soft_limit():
 @pytest.mark.parametrize("mode", ["norm", "value", "global-norm", "none"])
 def test_stacked_clipping_is_the_runtimes_clipping_of_each_run(mode):
     """Three runs' gradients, one far above the bound, one below, one with a single tensor
-    above it: clip_stacked gives each run the runtime's clip_gradients, and its global norm."""
-    from a3c_runtime import clip_gradients
-    from a3c_tools.batched import clip_stacked
+    above it: clip_stacked gives each run what clip_gradients (a stack of one) gives it alone,
+    and its global norm: no run's clipping depends on another's."""
+    from a3c_runtime import clip_gradients, clip_stacked
 
     generator = torch.Generator().manual_seed(0)
     shapes = [(4, 3), (5,), (2, 2, 2)]
@@ -883,13 +883,12 @@ def test_stacked_clipping_is_the_runtimes_clipping_of_each_run(mode):
 
 
 def test_stacked_rmsprop_is_the_runtimes_rmsprop_of_each_run_at_its_learning_rate():
-    from a3c_runtime import SharedRMSprop
-    from a3c_tools.batched import StackedRMSprop
+    from a3c_runtime import RMSprop
 
     generator = torch.Generator().manual_seed(1)
     params = [torch.randn(3, 4, 2, generator=generator), torch.randn(3, 5, generator=generator)]
-    stacked = StackedRMSprop([p.clone() for p in params], 0.9, 0.1, 0.5)
-    singles = [SharedRMSprop([p[i].clone() for p in params], 0.9, 0.1, 0.5) for i in range(3)]
+    stacked = RMSprop([p.clone() for p in params], 0.9, 0.1, 0.5, shared=False)
+    singles = [RMSprop([p[i].clone() for p in params], 0.9, 0.1, 0.5) for i in range(3)]
     lrs = [1e-3, 1e-2, 0.5]
     for _ in range(3):
         grads = [torch.randn(p.shape, generator=generator) * 10 for p in params]

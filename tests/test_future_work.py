@@ -244,13 +244,13 @@ def test_maintain_prototypes_grows_on_the_policys_states(growth_script):
     every action keeps at least one prototype, and nothing happens before the interval."""
     import types
 
-    from a3c_runtime.hogwild import SharedRMSprop
+    from a3c_runtime.hogwild import RMSprop
 
     script = growth_script
     torch.manual_seed(0)
     model, args = growth_network(script, growth_ratio=1e-6, growth_interval=100, seed=2)
     params = list(model.parameters())
-    optimizer = SharedRMSprop(params, 0.99, 0.1, initial=0.0)
+    optimizer = RMSprop(params, 0.99, 0.1, initial=0.0)
     shared = types.SimpleNamespace(model=model, params=params, optimizer=optimizer)
     index = next(i for i, p in enumerate(params) if p is model.prototypes)
     shared.optimizer.square_avg[index].fill_(5.0)
@@ -271,11 +271,11 @@ def test_maintain_prototypes_grows_on_the_policys_states(growth_script):
 
 
 def test_restart_statistics_resets_the_rows_of_either_optimizer(growth_script):
-    from a3c_runtime.hogwild import SharedAdam, SharedRMSprop
+    from a3c_runtime.hogwild import RMSprop, SharedAdam
 
     params = [torch.zeros(4, 2)]
     rmsprop, adam = (
-        SharedRMSprop(params, 0.99, 0.1, initial=1.0),
+        RMSprop(params, 0.99, 0.1, initial=1.0),
         SharedAdam(params, 0.9, 0.99, 0.1),
     )
     for statistic in (rmsprop.square_avg[0], adam.exp_avg[0], adam.exp_avg_sq[0]):
@@ -292,11 +292,11 @@ def test_growth_rounds_survive_a_resume(growth_script):
     resumed after a step does not repeat it."""
     import types
 
-    from a3c_runtime.hogwild import SharedRMSprop
+    from a3c_runtime.hogwild import RMSprop
 
     def shared_for(model):
         params = list(model.parameters())
-        optimizer = SharedRMSprop(params, 0.99, 0.1, initial=0.0)
+        optimizer = RMSprop(params, 0.99, 0.1, initial=0.0)
         return types.SimpleNamespace(model=model, params=params, optimizer=optimizer)
 
     script = growth_script

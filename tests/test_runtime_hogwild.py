@@ -49,7 +49,7 @@ def test_norm_clipping_scales_only_the_tensors_over_the_bound():
 
 def test_shared_rmsprop_step():
     param = torch.tensor([1.0, -1.0])
-    opt = runtime.SharedRMSprop([param], decay=0.99, eps=0.1)
+    opt = runtime.RMSprop([param], decay=0.99, eps=0.1)
     opt.step([torch.tensor([2.0, 0.0])], lr=0.1)
     # ms = 0.01 * g^2 = [0.04, 0]; theta -= 0.1 * g / sqrt(ms + 0.1)
     np.testing.assert_allclose(opt.square_avg[0].numpy(), [0.04, 0.0], rtol=1e-6)
@@ -60,13 +60,13 @@ def test_shared_rmsprop_from_tensorflows_initial_mean_square():
     """--rms-init 1 (TensorFlow's RMSPropOptimizer): with a small eps the first step stays
     about lr * g instead of 10 lr per weight."""
     param = torch.tensor([1.0, -1.0])
-    opt = runtime.SharedRMSprop([param], decay=0.99, eps=1e-5, initial=1.0)
+    opt = runtime.RMSprop([param], decay=0.99, eps=1e-5, initial=1.0)
     opt.step([torch.tensor([2.0, 0.0])], lr=0.1)
     # ms = 0.99 * 1 + 0.01 * g^2 = [1.03, 0.99]; theta -= 0.1 * g / sqrt(ms + 1e-5)
     np.testing.assert_allclose(opt.square_avg[0].numpy(), [1.03, 0.99], rtol=1e-6)
     np.testing.assert_allclose(param.numpy(), [1.0 - 0.2 / math.sqrt(1.03001), -1.0], rtol=1e-6)
     zero_start = torch.tensor([1.0])
-    runtime.SharedRMSprop([zero_start], decay=0.99, eps=1e-5).step([torch.tensor([2.0])], lr=0.1)
+    runtime.RMSprop([zero_start], decay=0.99, eps=1e-5).step([torch.tensor([2.0])], lr=0.1)
     assert zero_start.item() == pytest.approx(1.0 - 0.2 / math.sqrt(0.04001), abs=1e-6)  # 10 lr
 
 
@@ -85,7 +85,7 @@ def _step_in_child(opt, grad_value):
 
 def test_shared_rmsprop_state_is_shared_between_processes():
     param = torch.zeros(3).share_memory_()
-    opt = runtime.SharedRMSprop([param], decay=0.99, eps=0.1)
+    opt = runtime.RMSprop([param], decay=0.99, eps=0.1)
     for grad_value in (1.0, 2.0):  # two processes, one after the other
         child = FORK.Process(target=_step_in_child, args=(opt, grad_value))
         child.start()
@@ -153,3 +153,11 @@ def test_no_room_in_shared_memory_names_the_size_the_network_and_its_statistics_
         f"cannot put the network and its optimizer statistics ({size:.1f} MiB) in shared "
         "memory: No space left on device; free space in /dev/shm"
     ), raised.value
+
+
+def test_clipping_takes_a_scalar_parameters_gradient():
+    # GLPQ's trainable temperature is a 0-d parameter: its gradient clips with the rest
+    grads = [torch.tensor(30.0), torch.tensor([40.0, 0.0])]
+    norm = runtime.clip_gradients(grads, "global-norm", 25.0)
+    assert norm == pytest.approx(50.0)
+    np.testing.assert_allclose([grads[0].item(), *grads[1].tolist()], [15.0, 20.0, 0.0], rtol=1e-5)

@@ -106,39 +106,74 @@ def annealed_lr(args: Any, global_step: int) -> float:
     return args.learning_rate * max(0.0, 1.0 - global_step / args.total_timesteps)
 
 
-def clip_gradients(grads: list[torch.Tensor], mode: str, bound: float) -> float:
-    """Clip in place (thesis 6.3.1); returns the global norm before clipping."""
-    norms = torch.stack(torch._foreach_norm(grads))
-    global_norm = torch.linalg.vector_norm(norms)
-    # scale only when a bound is exceeded: a pass over 1.3M gradients saved in most updates
-    if mode == "norm" and bool((norms > bound).any()):
-        torch._foreach_mul_(grads, (bound / (norms + 1e-6)).clamp_(max=1.0).unbind())
+def clip_stacked(grads: list[torch.Tensor], mode: str, bound: float) -> torch.Tensor:
+    """Clip in place (thesis 6.3.1) the gradients of a stack of runs, each tensor (N, ...) with
+    run i's gradient at [i], each run by its own norms: "norm", each tensor by its norm where it
+    exceeds the bound (tf.clip_by_norm); "value", each element; "global-norm", all by their
+    global norm. Returns each run's global norm before clipping (N,). A worker clips its one
+    run as a stack of one (clip_gradients); the batched backend, its N runs."""
+    norms = torch.stack([g.reshape(len(g), -1).norm(dim=1) for g in grads], dim=1)  # (N, tensors)
+    global_norm = torch.linalg.vector_norm(norms, dim=1)
+    if mode == "norm":  # where any tensor of a run exceeds the bound, each by its own norm
+        over = (norms > bound).any(dim=1, keepdim=True)
+        factors = torch.where(over, (bound / (norms + 1e-6)).clamp(max=1.0), 1.0)
+    elif mode == "global-norm":
+        scale = (bound / (global_norm + 1e-6)).clamp(max=1.0)
+        factors = torch.where(global_norm > bound, scale, 1.0)[:, None].expand_as(norms)
     elif mode == "value":
         torch._foreach_clamp_min_(grads, -bound)
         torch._foreach_clamp_max_(grads, bound)
-    elif mode == "global-norm" and global_norm > bound:
-        torch._foreach_mul_(grads, torch.clamp(bound / (global_norm + 1e-6), max=1.0))
-    return global_norm.item()
+        return global_norm
+    else:
+        return global_norm
+    # on the CPU, no pass over the gradients where no bound is exceeded (most updates); on a
+    # GPU that check would wait for the device, and scaling by 1 is the same
+    if grads[0].is_cuda or bool((factors < 1.0).any()):
+        for j, g in enumerate(grads):
+            g.mul_(factors[:, j].view(-1, *[1] * (g.dim() - 1)))
+    return global_norm
 
 
-class SharedRMSprop:
-    """RMSprop with the mean square shared by all workers (thesis 2.2.3, 5.2.2):
-    ms <- rho * ms + (1 - rho) * g^2;  theta <- theta - lr * g / sqrt(ms + eps), from
-    ms = `initial` (0 in the thesis's code; TensorFlow's RMSPropOptimizer starts at 1)."""
+def clip_gradients(grads: list[torch.Tensor], mode: str, bound: float) -> float:
+    """Clip one run's gradients in place (thesis 6.3.1): `clip_stacked` of a stack of one.
+    Returns the global norm before clipping."""
+    return float(clip_stacked([g.unsqueeze(0) for g in grads], mode, bound)[0])
 
-    def __init__(self, params: list[torch.Tensor], decay: float, eps: float, initial: float = 0.0):
+
+class RMSprop:
+    """RMSprop (thesis 2.2.3, 5.2.2): ms <- rho * ms + (1 - rho) * g^2;  theta <- theta - lr *
+    g / sqrt(ms + eps), from ms = `initial` (0 in the thesis's code; TensorFlow's
+    RMSPropOptimizer starts at 1). Of one run's parameters, its mean square in shared memory,
+    shared by all the run's workers (a step's lr a number); or of a stack of runs' parameters
+    (N, ...), a step's lr a tensor (N,) of each run's (the batched backend, shared=False)."""
+
+    def __init__(
+        self,
+        params: list[torch.Tensor],
+        decay: float,
+        eps: float,
+        initial: float = 0.0,
+        shared: bool = True,
+    ):
         self.params, self.decay, self.eps, self.initial = params, decay, eps, initial
-        self.square_avg = [torch.full_like(p, initial).share_memory_() for p in params]
+        self.square_avg = [torch.full_like(p, initial) for p in params]
+        if shared:
+            for s in self.square_avg:
+                s.share_memory_()
 
     @torch.no_grad()
-    def step(self, grads: list[torch.Tensor], lr: float) -> None:
+    def step(self, grads: list[torch.Tensor], lr: float | torch.Tensor) -> None:
         torch._foreach_mul_(self.square_avg, self.decay)
         torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
         # g * (ms + eps)^-0.5: on CPU faster than sqrt and a division, and pow_(-0.5) than
         # rsqrt_ (same values, about half the time in torch 2.13's foreach kernels)
         inv_rms = torch._foreach_add(self.square_avg, self.eps)
         torch._foreach_pow_(inv_rms, -0.5)
-        torch._foreach_addcmul_(self.params, grads, inv_rms, value=-lr)
+        if not isinstance(lr, torch.Tensor):
+            torch._foreach_addcmul_(self.params, grads, inv_rms, value=-lr)
+            return
+        for p, g, inv in zip(self.params, grads, inv_rms, strict=True):  # a rate per run
+            p.addcmul_(g * inv, lr.view(-1, *[1] * (p.dim() - 1)), value=-1.0)
 
     def state_dict(self) -> dict:
         return {"square_avg": [s.clone() for s in self.square_avg]}
@@ -177,7 +212,7 @@ class SharedAdam:
         inv_rms = torch._foreach_div(self.exp_avg_sq, 1.0 - self.beta2**t)
         eps = self.eps if self.epsilon_form == "text" else self.eps / (1.0 - self.beta2**t)
         torch._foreach_add_(inv_rms, eps)
-        torch._foreach_pow_(inv_rms, -0.5)  # as SharedRMSprop's
+        torch._foreach_pow_(inv_rms, -0.5)  # as RMSprop's
         torch._foreach_addcmul_(
             self.params, self.exp_avg, inv_rms, value=-lr / (1.0 - self.beta1**t)
         )
@@ -196,11 +231,11 @@ class SharedAdam:
         self.step_count.copy_(state["step_count"])
 
 
-def make_optimizer(params: list[torch.Tensor], args: Any) -> SharedRMSprop | SharedAdam:
+def make_optimizer(params: list[torch.Tensor], args: Any) -> RMSprop | SharedAdam:
     if args.optimizer == "adam":
         form = getattr(args, "adam_epsilon_form", "text")
         return SharedAdam(params, args.adam_beta1, args.adam_beta2, args.optim_eps, form)
-    return SharedRMSprop(params, args.rms_decay, args.optim_eps, getattr(args, "rms_init", 0.0))
+    return RMSprop(params, args.rms_decay, args.optim_eps, getattr(args, "rms_init", 0.0))
 
 
 def process_seed(seed: int, index: int) -> int:

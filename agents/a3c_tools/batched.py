@@ -66,11 +66,13 @@ import torch
 import torch.nn.functional as F
 from a3c_runtime import (
     Checkpoint,
+    RMSprop,
     RunLog,
     Shared,
     UsageError,
     WriteFailed,
     annealed_lr,
+    clip_stacked,
     load_checkpoint,
     process_seed,
     save_checkpoint,
@@ -161,26 +163,6 @@ def sample_actions(log_probs: torch.Tensor, uniforms: torch.Tensor) -> torch.Ten
     return below.sum(dim=1).clamp(max=probs.shape[1] - 1)
 
 
-def clip_stacked(grads: list[torch.Tensor], mode: str, bound: float) -> torch.Tensor:
-    """a3c_runtime.clip_gradients for each run of stacked gradients (N, ...), in place: the same
-    factors, chosen per run. Returns each run's global norm before clipping (N,)."""
-    norms = torch.stack([g.flatten(1).norm(dim=1) for g in grads], dim=1)  # (N, tensors)
-    global_norm = torch.linalg.vector_norm(norms, dim=1)
-    if mode == "norm":  # where any tensor of a run exceeds the bound, each scaled by its own
-        factors = (bound / (norms + 1e-6)).clamp(max=1.0)
-        factors = torch.where((norms > bound).any(dim=1, keepdim=True), factors, 1.0)
-        for j, g in enumerate(grads):
-            g.mul_(factors[:, j].view(-1, *[1] * (g.dim() - 1)))
-    elif mode == "value":
-        for g in grads:
-            g.clamp_(-bound, bound)
-    elif mode == "global-norm":
-        factor = torch.where(global_norm > bound, (bound / (global_norm + 1e-6)).clamp(max=1), 1.0)
-        for g in grads:
-            g.mul_(factor.view(-1, *[1] * (g.dim() - 1)))
-    return global_norm
-
-
 def lstm_cell(cell: torch.nn.LSTMCell, x: torch.Tensor, state: tuple) -> tuple:
     """nn.LSTMCell's step, torch's own formula (ATen's lstm_cell: gates = W_ih x + b_ih + W_hh h
     + b_hh, split i, f, g, o; c' = sigma(f) c + sigma(i) tanh(g); h' = sigma(o) tanh(c')) in ops
@@ -200,24 +182,6 @@ def vmappable(network: torch.nn.Module) -> torch.nn.Module:
         if isinstance(module, torch.nn.LSTMCell):
             module.forward = functools.partial(lstm_cell, module)
     return network
-
-
-class StackedRMSprop:
-    """a3c_runtime.SharedRMSprop for each run of stacked parameters (N, ...), each run with its
-    own learning rate: ms <- rho ms + (1 - rho) g^2; theta <- theta - lr g / sqrt(ms + eps)."""
-
-    def __init__(self, params: list[torch.Tensor], decay: float, eps: float, initial: float):
-        self.params, self.decay, self.eps = params, decay, eps
-        self.square_avg = [torch.full_like(p, initial) for p in params]
-
-    @torch.no_grad()
-    def step(self, grads: list[torch.Tensor], lrs: torch.Tensor) -> None:
-        torch._foreach_mul_(self.square_avg, self.decay)
-        torch._foreach_addcmul_(self.square_avg, grads, grads, value=1.0 - self.decay)
-        inv_rms = torch._foreach_add(self.square_avg, self.eps)
-        torch._foreach_pow_(inv_rms, -0.5)
-        for p, g, inv in zip(self.params, grads, inv_rms, strict=True):
-            p.addcmul_(g * inv, lrs.view(-1, *[1] * (p.dim() - 1)), value=-1.0)
 
 
 class ActionUniforms:
@@ -344,8 +308,9 @@ class BatchedA3C:
         # buffers stacked too: LWS's fixed centroids are drawn from each run's seed
         self.buffers = {k: b.to(self.device) for k, b in buffers.items()}
         self.saved_names = list(models[0].state_dict())  # what a checkpoint's model holds
-        self.optimizer = StackedRMSprop(self.params, first.rms_decay, first.optim_eps,
-                                        first.rms_init)  # fmt: skip
+        self.optimizer = RMSprop(
+            self.params, first.rms_decay, first.optim_eps, first.rms_init, shared=False
+        )  # the runtime's, a learning rate per run
         self.envs = TorchCatchVectorEnv(n, self.device)
         self.envs.reset(seed=seeds)
         # LSTM: the state each run's worker carries across rollouts, (N, 1, cells) each; () for
