@@ -557,6 +557,27 @@ def test_a_plan_nested_too_deep_is_one_line_and_exit_2(tmp_path, text):
     assert sorted(plan.parent.iterdir()) == [plan]
 
 
+@pytest.mark.parametrize(
+    ("field", "says"),
+    [
+        ("seed = 1\n", "has no total_timesteps"),  # a sweep item without its steps
+        ('seed = 1\ntotal_timesteps = "many"\n', "a field of another kind"),
+        ("seed = [1]\ntotal_timesteps = 9\n", "a field of another kind"),
+    ],
+)
+def test_an_item_missing_a_field_or_of_another_kind_is_one_line_and_exit_2(tmp_path, field, says):
+    # (found by tests/test_loader_fuzz.py: a KeyError traceback before)
+    plan = tmp_path / "plan" / "plan.toml"
+    plan.parent.mkdir()
+    plan.write_text('[[item]]\nid = "s"\ntitle = "t"\nkind = "sweep"\nruns = 2\n' + field
+                    + 'lines = [{ script = "agents/a3c_ff.py", out = "results/x" }]\n')  # fmt: skip
+    result = run_main(campaign.main, [str(plan), "--status"])
+    assert (result.returncode, result.stdout) == (2, ""), result.stderr
+    assert result.stderr.startswith(f"error: {plan}: item 1") and says in result.stderr
+    assert result.stderr.count("\n") == 1
+    assert sorted(plan.parent.iterdir()) == [plan]
+
+
 def ff_and_online_plan(tmp_path: Path) -> Path:
     """A plan of a sweep item "s1" with two new lines, A3C FF into tmp_path/ff (a Catch sweep
     the batched backend takes) and online LWS into tmp_path/online (a future-work script it

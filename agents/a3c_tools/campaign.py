@@ -190,11 +190,25 @@ def not_elsewhere(flags: list, where: str, source: str) -> list:
 
 
 def read_item(entry: dict, index: int, plan: Path) -> Item:
+    """A plan's [[item]], or DataError in one line: a plan is a file someone may hand on, so any
+    field missing or of another kind is a malformed plan, never a traceback."""
     where = f"{plan}: item {index + 1}"
+    if not isinstance(entry, dict):
+        raise DataError(f"{where} is not a table")
     try:
-        kind, item_id, title = entry["kind"], entry["id"], entry["title"]
+        return item_of(entry, where)
+    except (DataError, SweepUsageError):  # said in one line already
+        raise
     except KeyError as missing:
         raise DataError(f"{where} has no {missing.args[0]}") from None
+    except (TypeError, ValueError, AttributeError, OverflowError) as error:
+        raise DataError(f"{where}: a field of another kind ({error})") from None
+
+
+def item_of(entry: dict, where: str) -> Item:
+    """read_item's work: KeyError, TypeError and ValueError, where a field is missing or not
+    what it should be, are read_item's to say."""
+    kind, item_id, title = entry["kind"], entry["id"], entry["title"]
     if kind not in KINDS:
         raise DataError(f"{where}: kind {kind!r}; valid: {', '.join(KINDS)}")
     try:  # a plan's scripts are the clone's agent scripts, its folders under results/
