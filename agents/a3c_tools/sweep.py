@@ -105,13 +105,14 @@ Backends.
   A task whose node dies is retried by Ray (3 times, its default), from scratch.
 - batched (`--backend batched`, `--device cpu|cuda`): the runs as one batched program on one
   device (a3c_tools.batched): run i is the script's own one-worker run with its seed and flags
-  (tests/test_batched.py), its folder gets what a run writes (evaluations.csv, TensorBoard
-  scalars, checkpoint.pt, stdout.log), locked as a run locks it (a run in use elsewhere is left
-  alone, as above). It runs a3c_ff.py, a3c_lws.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and
-  a3c_glpq.py on Catch-v0 with one worker; the runs may differ in their seed, learning rate,
-  weight and bias init; anything else it cannot batch is refused in one line (exit 2) before
-  anything runs. Ctrl-C or SIGTERM checkpoints every run at its last update (its stdout.log
-  names the signal); the next start resumes them.
+  (tests/test_batched.py), the same run in any batch (tests/test_batched_invariance.py), its
+  folder gets what a run writes (evaluations.csv, TensorBoard scalars, checkpoint.pt,
+  stdout.log), locked as a run locks it (a run in use elsewhere is left alone, as above). It
+  runs a3c_ff.py, a3c_lstm.py, a3c_lws.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and a3c_glpq.py
+  (batched.BATCHED_SCRIPTS) on Catch-v0 with one worker; the runs may differ in their seed,
+  learning rate, weight and bias init; anything else it cannot batch is refused in one line
+  (exit 2) before anything runs. Ctrl-C or SIGTERM checkpoints every run at its last update
+  (its stdout.log names the signal); the next start resumes them.
 
 Exit codes: 0 when every run is in the table and at least one is ok, 1 when every run failed,
 2 for bad arguments, a mismatched configuration or an OUT whose sweep.json or results.csv is not
