@@ -476,7 +476,7 @@ class BatchedA3C:
         start, n, episodes = time.time(), len(self.runs), self.args[0].eval_episodes
         self.set_progress()
         seeds, generators = [], []
-        for args in self.args:  # evaluate_network's keys, from its own function
+        for args in self.args:  # evaluate_network's keys
             run_seeds, generator = evaluation_randomness(args.seed, self.step_count, episodes)
             seeds, generators = seeds + run_seeds, [*generators, generator]
         if self.eval_envs is None or self.eval_envs.num_envs != n * episodes:
