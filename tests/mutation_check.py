@@ -473,10 +473,10 @@ MUTANTS = [
            "rows' word where the study has answered the conclusion", THESIS_CLAIMS,
            "if names and len(read) == len(names):", "if names and len(read) == len(names) + 1:",
            (CONFIRM_T, STUDY_T)),
-    Mutant("equivalence-power-one-side", "a comparable verdict's power needs the interval clear "
-           "of one edge of the band only", PAIRED,
+    Mutant("equivalence-power-both-tails", "a comparable verdict's power adds the chance below the "
+           "band's low edge to the chance inside it", PAIRED,
            "return 0.5 * (math.erfc(-upper / SQRT2) - math.erfc(-lower / SQRT2))",
-           "return 0.5 * math.erfc(-upper / SQRT2)", (STUDY_T,)),
+           "return 0.5 * (math.erfc(-upper / SQRT2) + math.erfc(-lower / SQRT2))", (STUDY_T,)),
     Mutant("reading-comparable-inside-band", "an inconclusive comparable claim whose interval "
            "straddles the band's edge reads 'not comparable'", STUDY_READING,
            "if outcome.low > MARGIN or outcome.high < -MARGIN:",
