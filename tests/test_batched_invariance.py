@@ -68,6 +68,17 @@ def same(a, b) -> bool:
     return a == b
 
 
+def run_state(module, run_dir: Path) -> tuple:
+    """A run folder's checkpoint (network, optimizer, step, worker) and evaluations (all but
+    their wall time)."""
+    checkpoint = load_checkpoint(str(run_dir / "checkpoint.pt"), module.AGENT)
+    with open(run_dir / "evaluations.csv") as f:
+        rows = [{k: v for k, v in row.items() if k != "wall_time_s"}
+                for row in csv.DictReader(f)]  # fmt: skip
+    return (checkpoint.model, checkpoint.optimizer, checkpoint.global_step, checkpoint.workers,
+            rows)  # fmt: skip
+
+
 def run_k_in_batches(tmp_path: Path, steps: int, t_max: int = 5) -> list[tuple]:
     """Run K's checkpoint (network, optimizer, step, worker) and evaluations (all but their wall
     time) after `steps`, trained alone, in a batch of 2 and in a batch of 7."""
@@ -82,13 +93,7 @@ def run_k_in_batches(tmp_path: Path, steps: int, t_max: int = 5) -> list[tuple]:
                                      eval_episodes=3, run_dir=str(folder / f"run-{i}")))
                 for i in indices]  # fmt: skip
         train_batched(module, runs, "cpu", log_interval=1e9)
-        run_dir = folder / f"run-{K}"
-        checkpoint = load_checkpoint(str(run_dir / "checkpoint.pt"), module.AGENT)
-        with open(run_dir / "evaluations.csv") as f:
-            rows = [{k: v for k, v in row.items() if k != "wall_time_s"}
-                    for row in csv.DictReader(f)]  # fmt: skip
-        found.append((checkpoint.model, checkpoint.optimizer, checkpoint.global_step,
-                      checkpoint.workers, rows))  # fmt: skip
+        found.append(run_state(module, folder / f"run-{K}"))
     return found
 
 
@@ -145,13 +150,7 @@ def final_state(out: Path) -> list[tuple]:
     module = load_script("a3c_ff")
     found = []
     for i in range(RUNS):
-        run_dir = out / "runs" / f"run-{i:04d}"
-        checkpoint = load_checkpoint(str(run_dir / "checkpoint.pt"), module.AGENT)
-        with open(run_dir / "evaluations.csv") as f:
-            rows = [{k: v for k, v in row.items() if k != "wall_time_s"}
-                    for row in csv.DictReader(f)]  # fmt: skip
-        found.append((checkpoint.model, checkpoint.optimizer, checkpoint.global_step,
-                      checkpoint.workers, rows))  # fmt: skip
+        found.append(run_state(module, out / "runs" / f"run-{i:04d}"))
     with open(out / "results.csv") as f:
         scores = sorted((row["run_id"], row["status"], row["score"]) for row in csv.DictReader(f))
     return [*found, scores]
