@@ -27,6 +27,7 @@ from a3c_runtime import (
     process_seed,
     replay_activations,
     run,
+    sample_actions,
     seed_everything,
 )
 
@@ -232,14 +233,6 @@ def init_parameters(model: nn.Module, weight_init: str, bias_init: float | None)
             nn.init.constant_(layer.bias, bias_init)
         elif weight_init != "torch":
             nn.init.zeros_(layer.bias)
-
-
-def sample_actions(probs: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
-    """Inverse-CDF sampling of one action per row of probs (K, A), with uniforms (K,) ~ U[0, 1):
-    a few microseconds, unlike torch.multinomial's per-call overhead. An action of probability
-    0 is never drawn."""
-    cdf = probs.cumsum(axis=1)
-    return np.minimum((cdf <= uniforms[:, None] * cdf[:, -1:]).sum(axis=1), probs.shape[1] - 1)
 
 
 def n_step_returns(

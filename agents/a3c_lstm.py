@@ -30,6 +30,7 @@ from a3c_runtime import (
     process_seed,
     replay_activations,
     run,
+    sample_actions,
     seed_everything,
 )
 
@@ -191,6 +192,22 @@ NETWORK_ARGS = ("env", "activation", "scale_obs", "lstm_cells")  # args the netw
 LSTMState = tuple[torch.Tensor, torch.Tensor]  # (h, c), each (B, lstm_cells)
 
 
+class LSTMCell(nn.LSTMCell):
+    """nn.LSTMCell (its parameters, their names and init) stepped by torch's own formula, that
+    of ATen's lstm_cell: gates = W_ih x + b_ih + W_hh h + b_hh, split i, f, g, o;
+    c' = sigma(f) c + sigma(i) tanh(g); h' = sigma(o) tanh(c'). In plain ops, bit for bit
+    nn.LSTMCell's values and gradients on the CPU, that torch.func.vmap batches (aten::lstm_cell
+    has no batching rule): the sweep's batched backend steps this cell as the worker does."""
+
+    def forward(self, x: torch.Tensor, state: LSTMState) -> LSTMState:
+        h, c = state
+        gates = F.linear(x, self.weight_ih, self.bias_ih)
+        gates = gates + F.linear(h, self.weight_hh, self.bias_hh)
+        i, f, g, o = gates.chunk(4, dim=-1)
+        c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+        return torch.sigmoid(o) * torch.tanh(c), c
+
+
 class ActorCritic(nn.Module):
     """A3C LSTM (Mnih et al. 2016): conv 32 8x8/4, conv 64 4x4/2, FC 256, LSTM 256, softmax
     policy, linear value. The init flags apply to the conv and linear layers; the LSTM keeps
@@ -210,7 +227,7 @@ class ActorCritic(nn.Module):
             nn.Linear(64 * 9 * 9, 256),
             activation(inplace=True),
         )
-        self.lstm = nn.LSTMCell(256, args.lstm_cells)
+        self.lstm = LSTMCell(256, args.lstm_cells)
         self.policy = nn.Linear(args.lstm_cells, num_actions)
         self.value = nn.Linear(args.lstm_cells, 1)
         self.obs_scale = 1.0 / 255.0 if args.scale_obs else 1.0
@@ -269,14 +286,6 @@ def init_parameters(model: nn.Module, weight_init: str, bias_init: float | None)
             nn.init.constant_(layer.bias, bias_init)
         elif weight_init != "torch":
             nn.init.zeros_(layer.bias)
-
-
-def sample_actions(probs: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
-    """Inverse-CDF sampling of one action per row of probs (K, A), with uniforms (K,) ~ U[0, 1):
-    a few microseconds, unlike torch.multinomial's per-call overhead. An action of probability
-    0 is never drawn."""
-    cdf = probs.cumsum(axis=1)
-    return np.minimum((cdf <= uniforms[:, None] * cdf[:, -1:]).sum(axis=1), probs.shape[1] - 1)
 
 
 def n_step_returns(

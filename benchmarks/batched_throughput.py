@@ -40,8 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
 
 from a3c_runtime import resolve_defaults  # noqa: E402
+from a3c_runtime.batched import BatchedA3C, BatchedRun, set_up_device  # noqa: E402
 from a3c_tools import load_script  # noqa: E402
-from a3c_tools.batched import BatchedA3C, BatchedRun, set_up_device  # noqa: E402
 
 THESIS_LINE = {"runs": 50, "steps": 1_000_000, "eval_interval": 50_000}
 

@@ -67,7 +67,8 @@ RUN = ("agents/a3c_runtime/a3c.py",)
 SUPERVISION = ("agents/a3c_runtime/supervision.py",)
 EVALUATION = ("agents/a3c_runtime/evaluation.py",)
 SNAPSHOTS = ("agents/a3c_runtime/snapshots.py",)
-BATCHED_BACKEND = ("agents/a3c_tools/batched.py",)
+BATCHED_BACKEND = ("agents/a3c_runtime/batched.py",)
+BATCHED_SWEEP = ("agents/a3c_tools/batched.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
 ATARI_FIGURES = ("agents/a3c_tools/atari_figures.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
@@ -146,7 +147,7 @@ MUTANTS = [
            "learns with its own initial network", ALL,
            "torch._foreach_copy_(params, shared.params)  # theta' <- theta",
            "torch._foreach_copy_(params, params)  # theta' <- theta", (WORKERS,)),
-    Mutant("sample-zero-probability", "sampling can draw an action of probability 0", ALL,
+    Mutant("sample-zero-probability", "sampling can draw an action of probability 0", HOGWILD,
            "cdf <= uniforms[:, None] * cdf[:, -1:]", "cdf < uniforms[:, None] * cdf[:, -1:]",
            (BATCHED,)),
     Mutant("act-without-randomness", "the workers act with u = 0: always the first action "
@@ -365,24 +366,26 @@ MUTANTS = [
            "np.stack([self.rngs[0].random(UNIFORM_BLOCK) for _ in self.rngs], axis=1)",
            (BATCH_T,)),
     Mutant("batched-one-evaluation-stream", "every run's evaluation plays run 0's episodes",
-           BATCHED_BACKEND, "for args in self.args:  # evaluate_network's keys",
-           "for args in self.args[:1] * len(self.args):  # evaluate_network's keys", (BATCH_T,)),
+           BATCHED_BACKEND,
+           "keys = [evaluation_randomness(args.seed, step, episodes) for args in",
+           "keys = [evaluation_randomness(self.args[0].seed, step, episodes) for args in",
+           (BATCH_T,)),
     Mutant("batched-rmsprop-no-decay", "the batch's RMSprop statistics never decay (rho = 1)",
            HOGWILD, "torch._foreach_mul_(self.square_avg, self.decay)",
            "torch._foreach_mul_(self.square_avg, 1.0)", (BATCH_T, OPTIM)),
     Mutant("batched-parse-names-the-rule", "a run flag the script refuses is named by tyro's "
-           "ASCII rule, not its message", BATCHED_BACKEND,
+           "ASCII rule, not its message", BATCHED_SWEEP,
            'body = [line for line in lines if line.strip("─-╭╮╰╯│ ")][1:]',
            'body = [line for line in lines if line.strip("─╭╮╰╯│ ")][1:]', (BATCH_T,)),
     Mutant("batched-k-envs-as-one", "a run with K = 4 envs per worker is batched, silently as "
-           "K = 1", BATCHED_BACKEND, '"envs_per_worker": ("1", lambda v: v == 1),',
+           "K = 1", BATCHED_SWEEP, '"envs_per_worker": ("1", lambda v: v == 1),',
            '"envs_per_worker": ("1", lambda v: v >= 1),', (BATCH_T,)),
     Mutant("batched-one-wall-clock", "every run resumed in a batch goes on from run 0's "
            "checkpoint wall time", BATCHED_BACKEND,
            "self.wall_offsets[i] = checkpoint.wall_time",
            "self.wall_offsets[i] = checkpoints[0].wall_time", (BATCH_T,)),
     Mutant("batched-one-episode-step", "runs resuming at one global step but at different steps "
-           "of their episodes are one batch", BATCHED_BACKEND,
+           "of their episodes are one batch", BATCHED_SWEEP,
            "group = groups.setdefault((start, episode_row(checkpoint)), [])",
            "group = groups.setdefault((start, BALL_START_ROW), [])", (BATCH_T,)),
     Mutant("batched-stopped-by-sigint", "a batch stopped by SIGTERM says SIGINT", BATCHED_BACKEND,

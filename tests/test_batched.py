@@ -1,9 +1,8 @@
-"""The batched backend (a3c_tools.batched) and its torch Catch (a3c_tools.torch_catch): the
-torch env against catch_env's NumPy env game for game, and run i of the batched backend against
-the script's own one-worker run with the same seed and flags, action for action and parameter
-for parameter."""
+"""The batched backend (a3c_runtime.batched, the sweep's a3c_tools.batched) and its torch Catch
+(catch_env.torch_catch): the torch env against catch_env's NumPy env game for game, and run i
+of the batched backend against the script's own one-worker run with the same seed and flags,
+action for action and parameter for parameter."""
 
-import copy
 import csv
 import dataclasses
 import errno
@@ -24,10 +23,11 @@ from a3c_runtime import (
     make_eval_envs,
     seed_everything,
 )
+from a3c_runtime import batched as runtime_batched
+from a3c_runtime.batched import BatchedA3C, BatchedRun, train_batched
 from a3c_runtime.snapshots import saved_state
 from a3c_tools import batched, sweep
-from a3c_tools.batched import BatchedA3C, BatchedRun, probe, resumable_checkpoint, train_batched
-from a3c_tools.torch_catch import NumpyStateView, TorchCatchVectorEnv
+from a3c_tools.batched import probe, resumable_checkpoint
 from conftest import (
     FORK,
     ROOT,
@@ -42,6 +42,7 @@ from conftest import (
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from catch_env.torch_catch import NumpyStateView, TorchCatchVectorEnv
 from catch_env.wrappers import make_vector_env
 
 
@@ -599,7 +600,7 @@ def test_a_full_disk_stops_the_batch_with_its_checkpoints_whole(tmp_path, monkey
     """The second checkpoint's write fails (ENOSPC, as a full disk fails it): the sweep ends with
     exit 1 and one line saying how to go on, the first checkpoints intact; started again, it
     resumes them from step 15 and finishes every run."""
-    save, saves = batched.save_checkpoint, []
+    save, saves = runtime_batched.save_checkpoint, []
 
     def full_disk_at_the_second_mark(path, *rest):
         saves.append(path)
@@ -607,7 +608,7 @@ def test_a_full_disk_stops_the_batch_with_its_checkpoints_whole(tmp_path, monkey
             raise WriteFailed(path, OSError(errno.ENOSPC, "No space left on device"))
         save(path, *rest)
 
-    monkeypatch.setattr(batched, "save_checkpoint", full_disk_at_the_second_mark)
+    monkeypatch.setattr(runtime_batched, "save_checkpoint", full_disk_at_the_second_mark)
     out = tmp_path / "out"
     tiny = ["--eval-interval", "15", "--eval-episodes", "2", "--t-max", "5"]
     result = batched_sweep(out, "--", *tiny, steps=30)
@@ -618,7 +619,7 @@ def test_a_full_disk_stops_the_batch_with_its_checkpoints_whole(tmp_path, monkey
     for run in ("run-0000", "run-0001"):
         checkpoint = load_checkpoint(str(out / "runs" / run / "checkpoint.pt"), module.AGENT)
         assert checkpoint.global_step == 15
-    monkeypatch.setattr(batched, "save_checkpoint", save)
+    monkeypatch.setattr(runtime_batched, "save_checkpoint", save)
     result = batched_sweep(out, "--", *tiny, steps=30)
     assert result.returncode == 0, result.stderr
     assert "resuming at step 15" in result.stdout
@@ -782,7 +783,7 @@ def test_set_up_device_cuda_makes_cudnn_deterministic():
     try:
         cudnn.deterministic, cudnn.benchmark = False, True
         cudnn.allow_tf32 = matmul.allow_tf32 = True
-        batched.set_up_device("cuda")
+        runtime_batched.set_up_device("cuda")
         assert cudnn.deterministic and not cudnn.benchmark
         assert not cudnn.allow_tf32 and not matmul.allow_tf32
     finally:
@@ -851,9 +852,9 @@ def test_a_batch_may_hold_its_files_open_past_a_low_soft_limit():
     expected = 600 if hard == resource.RLIM_INFINITY else min(600, hard)
     try:
         resource.setrlimit(resource.RLIMIT_NOFILE, (low, hard))
-        batched.allow_open_files(600)
+        runtime_batched.allow_open_files(600)
         assert resource.getrlimit(resource.RLIMIT_NOFILE) == (expected, hard)
-        batched.allow_open_files(100)
+        runtime_batched.allow_open_files(100)
         assert resource.getrlimit(resource.RLIMIT_NOFILE) == (expected, hard)
     finally:
         resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
@@ -908,32 +909,43 @@ def test_stacked_rmsprop_is_the_runtimes_rmsprop_of_each_run_at_its_learning_rat
     uniforms=st.lists(st.floats(0, 1, exclude_max=True), min_size=8, max_size=8),
 )
 def test_the_batchs_action_draws_are_the_workers(logits, uniforms):
-    """For the same probabilities and uniforms, sample_actions on torch tensors draws the
-    script's inverse-CDF actions (a3c_ff.sample_actions on NumPy arrays)."""
-    from a3c_tools.batched import sample_actions
+    """The runtime's one sample_actions, which the worker calls on NumPy arrays and the batched
+    backend on tensors, draws the same actions from the same probabilities and uniforms; and
+    the worker's is that one (no copy of its own)."""
+    from a3c_runtime import sample_actions
 
-    module = load_script("a3c_ff")
+    assert load_script("a3c_ff").sample_actions is sample_actions
     log_probs = torch.log_softmax(torch.tensor(logits, dtype=torch.float32), dim=1)
     u = np.array(uniforms[: len(logits)])
-    expected = module.sample_actions(log_probs.exp().numpy(), u)
-    np.testing.assert_array_equal(sample_actions(log_probs, torch.from_numpy(u)).numpy(), expected)
+    expected = sample_actions(log_probs.exp().numpy(), u)
+    got = sample_actions(log_probs.exp(), torch.from_numpy(u))
+    np.testing.assert_array_equal(got.numpy(), expected)
 
 
-def test_the_vmappable_lstm_step_is_torchs_lstm_cell():
-    """batched.lstm_cell (torch's LSTMCell formula in ops vmap batches) gives nn.LSTMCell's h and
-    c, and under vmap over stacked cells each cell's own."""
+def test_the_lstm_scripts_cell_is_torchs_lstm_cell_and_runs_under_vmap():
+    """a3c_lstm.LSTMCell (torch's formula in ops vmap batches), which the worker and the batched
+    backend both step, gives nn.LSTMCell's h, c and gradients bit for bit on the CPU, and under
+    vmap over stacked cells each cell's own."""
+    LSTMCell = load_script("a3c_lstm").LSTMCell
     torch.manual_seed(0)
-    cells = [torch.nn.LSTMCell(6, 4) for _ in range(3)]
+    cells = [LSTMCell(6, 4) for _ in range(3)]
+    torch_cells = [torch.nn.LSTMCell(6, 4) for _ in range(3)]
+    for cell, torch_cell in zip(cells, torch_cells, strict=True):
+        torch_cell.load_state_dict(cell.state_dict())
     x, h, c = torch.randn(3, 5, 6), torch.randn(3, 5, 4), torch.randn(3, 5, 4)
-    expected = [cell(x[k], (h[k], c[k])) for k, cell in enumerate(cells)]
+    expected = [cell(x[k], (h[k], c[k])) for k, cell in enumerate(torch_cells)]
     for k, cell in enumerate(cells):
-        for got, want in zip(batched.lstm_cell(cell, x[k], (h[k], c[k])), expected[k], strict=True):
-            torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-6)
-    base = batched.vmappable(copy.deepcopy(cells[0]))
+        got = cell(x[k], (h[k], c[k]))
+        for g, want in zip(got, expected[k], strict=True):
+            assert torch.equal(g, want)
+        grads = torch.autograd.grad(sum(t.sum() for t in got), list(cell.parameters()))
+        wanted = torch.autograd.grad(sum(t.sum() for t in expected[k]),
+                                     list(torch_cells[k].parameters()))  # fmt: skip
+        assert all(torch.equal(g, w) for g, w in zip(grads, wanted, strict=True))
     params, _ = torch.func.stack_module_state(cells)
 
     def step(weights, x, state):
-        return torch.func.functional_call(base, weights, (x, state))
+        return torch.func.functional_call(cells[0], weights, (x, state))
 
     h_all, c_all = torch.func.vmap(step)(params, x, (h, c))
     for k in range(3):

@@ -16,9 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from a3c_runtime import load_checkpoint
-from a3c_tools import batched
-from a3c_tools.batched import BatchedA3C, BatchedRun, train_batched
+from a3c_runtime import batched, load_checkpoint
+from a3c_runtime.batched import BatchedA3C, BatchedRun, train_batched
 from conftest import ROOT, load_script, tiny_args
 
 NETWORKS = ("a3c_ff", "a3c_lstm", "a3c_lws", "a3c_ss", "a3c_ww", "a3c_lpq", "a3c_glpq")
@@ -121,7 +120,7 @@ SWEEP = ["agents/a3c_ff.py", "--runs", str(RUNS), "--total-timesteps", str(STEPS
 KILLED_BETWEEN_WRITES = """
 import os, signal, sys
 sys.path[:0] = [{agents!r}, {root!r}]
-import a3c_tools.batched as b
+import a3c_runtime.batched as b
 write = b.save_checkpoint
 def save_checkpoint(path, shared, *rest):
     write(path, shared, *rest)

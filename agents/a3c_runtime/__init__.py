@@ -5,7 +5,10 @@ module per concern:
 - `a3c`: A3C's structure in one function (`train`: the shared network and optimizer, N
   actor-learner processes, the evaluator) and the command line (`run`);
 - `hogwild`: what the processes share (`Shared`, each worker's `WorkerStats`), the shared
-  RMSprop and Adam, gradient clipping, the learning-rate schedule, the processes' seeds;
+  RMSprop and Adam, action sampling, gradient clipping, the learning-rate schedule, the
+  processes' seeds;
+- `batched`: N one-worker runs as one program on one device (the sweep's --backend batched),
+  through the same pieces;
 - `supervision`: starting and watching the processes, signals, how a run stops;
 - `evaluation`: the evaluator process, the thesis's evaluation protocol, --evaluate;
 - `checkpoints`: atomic save; the gate (a checkpoint read once, every field checked, handed on
@@ -60,6 +63,7 @@ from .hogwild import (
     clip_gradients,
     clip_stacked,
     process_seed,
+    sample_actions,
     seed_everything,
 )
 from .replay import ActivationReplay, replay_activations
@@ -159,6 +163,7 @@ __all__ = [
     "restore",
     "run",
     "run_process",
+    "sample_actions",
     "save_checkpoint",
     "seed_everything",
     "train",

@@ -62,11 +62,7 @@ def play_episodes(
                 log_probs = log_probs[0]
             else:
                 log_probs, _ = model(batch)
-            if greedy:
-                chosen = log_probs.argmax(1).tolist()
-            else:
-                chosen = torch.multinomial(log_probs.exp(), 1, generator=generator)
-                chosen = chosen.squeeze(1).tolist()
+            chosen = evaluation_actions(log_probs, greedy, generator).tolist()
             still_running = []
             for i, action in zip(running, chosen, strict=True):
                 observations[i], _, terminated, truncated, info = envs[i].step(action)
@@ -80,6 +76,17 @@ def play_episodes(
                 state = tuple(s[[running.index(i) for i in still_running]] for s in state)
             running = still_running
     return scores
+
+
+def evaluation_actions(
+    log_probs: torch.Tensor, greedy: bool, generator: torch.Generator | None
+) -> torch.Tensor:
+    """The evaluation's actions for log-probs (E, A) of one run's E episodes: sampled from pi
+    with the evaluation's generator (the thesis's protocol), or argmax pi (--eval-greedy, the
+    first of tied actions). Both backends' evaluations choose through this."""
+    if greedy:
+        return log_probs.argmax(1)
+    return torch.multinomial(log_probs.exp(), 1, generator=generator)[:, 0]
 
 
 def make_eval_envs(

@@ -106,6 +106,16 @@ def annealed_lr(args: Any, global_step: int) -> float:
     return args.learning_rate * max(0.0, 1.0 - global_step / args.total_timesteps)
 
 
+def sample_actions(probs: Any, uniforms: Any) -> Any:
+    """Inverse-CDF sampling of one action per row of probs (K, A) with uniforms (K,) ~ U[0, 1),
+    on NumPy arrays (a worker's, a few microseconds, unlike torch.multinomial's per-call
+    overhead) or on tensors (the batched backend's, on its device), the same code for both: the
+    float32 cumulative sums compared in float64, as both promote them, so the same probabilities
+    and uniforms draw the same actions. An action of probability 0 is never drawn."""
+    cdf = probs.cumsum(1)
+    return (cdf <= uniforms[:, None] * cdf[:, -1:]).sum(1).clip(max=probs.shape[1] - 1)
+
+
 def clip_stacked(grads: list[torch.Tensor], mode: str, bound: float) -> torch.Tensor:
     """Clip in place (thesis 6.3.1) the gradients of a stack of runs, each tensor (N, ...) with
     run i's gradient at [i], each run by its own norms: "norm", each tensor by its norm where it

@@ -113,12 +113,42 @@ def next_mark(step: int, interval: int) -> int:
     return (step // interval + 1) * interval
 
 
+class MarkClock:
+    """A run's next evaluation and checkpoint marks (multiples of --eval-interval and of
+    --checkpoint-interval) in `marks`, a tensor that forked processes may share, and which of
+    them an update reached: the one rule of both backends (StepMarks's workers, the batched
+    backend's loop)."""
+
+    def __init__(self, marks: torch.Tensor, args: Any = None, start_step: int = 0):
+        self.marks = marks
+        self.eval_interval = self.checkpoint_interval = self.total = NEVER
+        if args is not None:
+            self.eval_interval, self.checkpoint_interval = (args.eval_interval,
+                                                            args.checkpoint_interval)  # fmt: skip
+            self.total = args.total_timesteps
+            self.marks[0] = next_mark(start_step, self.eval_interval)
+            self.marks[1] = next_mark(start_step, self.checkpoint_interval)
+
+    def reached(self, step: int) -> tuple[bool, bool]:
+        """After an update that took the (global) step to `step`: whether it is an evaluation's
+        (the one at T_max is the run's final evaluation, not a mark's) and a checkpoint's, each
+        mark it reached moved past it."""
+        evaluate = checkpoint = False
+        if step >= int(self.marks[0]):
+            evaluate = step < self.total
+            self.marks[0] = next_mark(step, self.eval_interval)
+        if step >= int(self.marks[1]):
+            checkpoint = True
+            self.marks[1] = next_mark(step, self.checkpoint_interval)
+        return evaluate, checkpoint
+
+
 class StepMarks:
     """The marks of the next evaluation and checkpoint, shared by the processes, and what a
     worker does when its update reaches one (see the module docstring)."""
 
     def __init__(self, ctx: Any):
-        self.marks = torch.full((2,), NEVER, dtype=torch.int64).share_memory_()
+        self.clock = MarkClock(torch.full((2,), NEVER, dtype=torch.int64).share_memory_())
         self.lock = ctx.Lock()  # one worker at a time takes a snapshot and moves the mark
         self.events = ctx.Queue()  # to the main process: (number, (kind, step, ...))
         # the marks' events are numbered as they are sent (under the lock): each process's queue
@@ -126,34 +156,29 @@ class StepMarks:
         self.sent = torch.zeros(1, dtype=torch.int64).share_memory_()
         self.held: dict[int, tuple] = {}  # main process: events that came before an earlier one
         self.next_number = 0
-        self.eval_interval = self.checkpoint_interval = self.total = NEVER
         self.exact = False  # one worker: checkpoints carry its state
         self.resumed_states: dict[int, list[Any]] = {}
 
     def start(self, start_step: int, args: Any, resumed_states: dict | None) -> None:
         """Set the marks for a run from start_step (before the workers fork)."""
-        self.eval_interval, self.checkpoint_interval = args.eval_interval, args.checkpoint_interval
-        self.total, self.exact = args.total_timesteps, args.num_workers == 1
-        self.marks[0] = next_mark(start_step, self.eval_interval)
-        self.marks[1] = next_mark(start_step, self.checkpoint_interval)
+        self.clock = MarkClock(self.clock.marks, args, start_step)
+        self.exact = args.num_workers == 1
         self.resumed_states = {int(k): v for k, v in (resumed_states or {}).items()}
 
     def reached(self, shared: Any, worker_id: int, step: int, state: Callable | None) -> None:
         """After an update that took the global step to `step`: the snapshots of the marks it
         reached, and the marks moved past it."""
-        if step < int(self.marks.min()):
+        if step < int(self.clock.marks.min()):
             return
         with self.lock:
-            if step >= int(self.marks[0]):
-                if step < self.total:  # the evaluation at T_max is the run's final one
-                    self.send(EVALUATE, step, copy_of(shared.model.state_dict()))
-                self.marks[0] = next_mark(step, self.eval_interval)
-            if step >= int(self.marks[1]):
+            evaluate, checkpoint = self.clock.reached(step)
+            if evaluate:
+                self.send(EVALUATE, step, copy_of(shared.model.state_dict()))
+            if checkpoint:
                 states = {worker_id: saved_state(state())} if self.exact and state else {}
                 model = copy_of(shared.model.state_dict())
                 optimizer = copy_of(shared.optimizer.state_dict())
                 self.send(CHECKPOINT, step, model, optimizer, states)
-                self.marks[1] = next_mark(step, self.checkpoint_interval)
 
     def finished(self, worker_id: int, state: Callable, orphaned: bool) -> None:
         """A worker's state as its loop ends, for the run's last checkpoint. With its main
@@ -161,7 +186,7 @@ class StepMarks:
         hand over must not hold it at its exit."""
         if orphaned:
             self.events.cancel_join_thread()
-        elif int(self.marks.min()) < NEVER:  # in a run (not a worker called by a test alone)
+        elif int(self.clock.marks.min()) < NEVER:  # in a run (not a worker called by a test alone)
             self.send(FINAL, worker_id, saved_state(state()), numbered=False)  # in any order
 
     def send(self, *event: Any, numbered: bool = True) -> None:

@@ -1,6 +1,6 @@
-"""Catch-v0 in torch, for the batched backend (a3c_tools.batched): N games of Catch with the
-thesis preprocessing (4 stacked 84x84 frames, same-step autoreset), stepped where the networks
-run, so that no frame crosses from the host to the device per step.
+"""Catch-v0 in torch, for the agents' batched backend (a3c_runtime.batched): N games of Catch
+with the thesis preprocessing (4 stacked 84x84 frames, same-step autoreset), stepped where the
+networks run, so that no frame crosses from the host to the device per step.
 
 It is the NumPy env of catch_env under `catch_env.wrappers.make_vector_env` (a
 `FrameStackVectorEnv` over a `CatchVectorEnv`), game for game: the same seeds give the same
@@ -15,7 +15,8 @@ frame:
   is known on the host without reading the device.
 
 The rules and the drawing tables are catch_env's (CatchRules); only the default 84x84 pixel
-frames are drawn here. catch_env itself does not need torch.
+frames are drawn here. catch_env itself does not need torch: importing it does not import this
+module, which needs torch (`pip install "catch-env[torch]"`).
 """
 
 from __future__ import annotations
@@ -23,8 +24,14 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import torch
 from gymnasium.utils import seeding
+
+try:
+    import torch
+except ImportError as e:  # catch_env installs without torch; this module alone needs it
+    raise ImportError(
+        'catch_env.torch_catch needs torch: pip install "catch-env[torch]" (or torch)'
+    ) from e
 
 from catch_env.catch import (
     ACTION_DIRECTION,

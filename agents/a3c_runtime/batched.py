@@ -1,0 +1,439 @@
+"""N one-worker runs of a thesis script as one program on one device (a GPU, or the CPU), in the
+manner of PureJaxRL's vmapped training: the sweep's `--backend batched` (a3c_tools.batched).
+
+Run i is the script's own one-worker run (`--num-workers 1`) with its seed and flags, and a run
+is the same run in any batch (tests/test_batched.py, tests/test_batched_invariance.py). What a
+run does is the code the worker and the runtime run: the script's network, `n_step_returns`,
+`a3c_loss` (and GLPQ's `tau_corrected_loss`), and the runtime's `sample_actions`,
+`clip_stacked`, `RMSprop`, `annealed_lr`, `evaluation_randomness` and `evaluation_actions`,
+`MarkClock`, `RunLog`, checkpoints and run folders. What is only this module's is the stacking:
+the N networks' parameters stacked (torch.func.stack_module_state) and called under vmap, the
+gradients by vmap(grad(loss)); each run's generator drawn in blocks (`ActionUniforms`); the
+runs' games on one torch Catch (catch_env.torch_catch); the runs' rollouts in lockstep (every
+game of Catch lasts 15 steps: the runs of a batch start with their balls on one row, checked
+here); and the loop that evaluates, checkpoints and logs each run at the marks.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType, SimpleNamespace
+from typing import Any
+
+import numpy as np
+import torch
+from torch.func import functional_call, grad, stack_module_state, vmap
+
+from catch_env.torch_catch import NumpyStateView, TorchCatchVectorEnv
+
+from .checkpoints import Checkpoint, save_checkpoint
+from .evaluation import evaluation_actions, evaluation_randomness
+from .hogwild import (
+    RMSprop,
+    WorkerStats,
+    annealed_lr,
+    clip_stacked,
+    process_seed,
+    sample_actions,
+    seed_everything,
+)
+from .run_folder import RunFolder
+from .run_log import RunLog, logged_steps
+from .snapshots import MarkClock, arrays_of, saved_state
+
+UNIFORM_BLOCK = 256  # action uniforms drawn per run at a time
+FILES_PER_RUN = 4  # held open by a batch: the folder's lock, evaluations.csv, events, stdout.log
+
+
+def network_frames(frames: torch.Tensor) -> torch.Tensor:
+    """uint8 frames (..., 4, 84, 84) as float32, each stack channels-last: the layout the
+    scripts' networks convert their input to, so that it is a no-op under vmap (which cannot
+    change a layout)."""
+    return frames.movedim(-3, -1).contiguous().float().movedim(-1, -3)
+
+
+class ActionUniforms:
+    """Each run's worker generator (np.random.default_rng(its process seed)) drawn in blocks: the
+    k-th uniform of a block is the k-th `rng.random(1)` the worker would draw. `generator(i)`
+    is run i's generator where the worker's would be now, for its checkpoint."""
+
+    def __init__(self, rngs: list[np.random.Generator], device: torch.device):
+        self.rngs, self.device = rngs, device
+        self.block_states: list[dict] = []
+        self.block, self.used = torch.empty(0), UNIFORM_BLOCK
+
+    def next(self) -> torch.Tensor:
+        if self.used == UNIFORM_BLOCK:
+            self.block_states = [rng.bit_generator.state for rng in self.rngs]
+            draws = np.stack([rng.random(UNIFORM_BLOCK) for rng in self.rngs], axis=1)
+            self.block, self.used = torch.as_tensor(draws, device=self.device), 0
+        self.used += 1
+        return self.block[self.used - 1]
+
+    def generator(self, i: int) -> np.random.Generator:
+        if not self.block_states:
+            return copy.deepcopy(self.rngs[i])
+        rng = np.random.Generator(np.random.PCG64())
+        rng.bit_generator.state = self.block_states[i]
+        rng.random(self.used)
+        return rng
+
+
+@dataclass
+class BatchedRun:
+    """One run of a batch: its resolved Args (run_dir set), the checkpoint it resumes from, and
+    its run folder, locked by the caller that read that checkpoint (None: train_batched locks
+    it)."""
+
+    args: Any
+    checkpoint: Checkpoint | None = None
+    folder: RunFolder | None = None
+
+
+class BatchedA3C:
+    """N one-worker runs of a script in lockstep (the module docstring)."""
+
+    def __init__(self, module: ModuleType, runs: list[BatchedRun], device: str | torch.device):
+        self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
+        # a run alone computes beside a copy of itself whose results are dropped: vmap over one
+        # run takes other kernels than over two or more, which part in the last bits
+        self.shown = len(runs)
+        if len(runs) == 1:
+            runs = [runs[0], dataclasses.replace(runs[0], folder=None)]
+        self.runs, self.args = runs, [run.args for run in runs]
+        self.total, n = self.args[0].total_timesteps, len(runs)
+        models, seeds = [], [process_seed(args.seed, 0) for args in self.args]  # the workers'
+        for args in self.args:
+            seed_everything(args.seed)  # as a3c_runtime.train builds the run's network
+            models.append(self.agent.build_network(3, args))
+        self.rngs = [np.random.default_rng(seed) for seed in seeds]
+        self.cpu_model = models[0]  # the checkpoints' network
+        self.base = copy.deepcopy(models[0]).to(self.device)
+        params, buffers = stack_module_state(models)
+        self.names = list(params)
+        self.params = [params[k].detach().to(self.device) for k in self.names]
+        self.buffers = {k: b.to(self.device) for k, b in buffers.items()}  # (LWS's centroids)
+        self.saved_names = list(models[0].state_dict())  # what a checkpoint's model holds
+        a = self.args[0]
+        self.optimizer = RMSprop(self.params, a.rms_decay, a.optim_eps, a.rms_init, shared=False)
+        self.envs = TorchCatchVectorEnv(n, self.device)
+        self.envs.reset(seed=seeds)
+        # LSTM: the state each run's worker carries across rollouts, (N, 1, cells) each
+        self.state: tuple[torch.Tensor, ...] = ()
+        if hasattr(self.base, "initial_state"):
+            self.state = tuple(s.expand(n, *s.shape).clone().to(self.device)
+                               for s in models[0].initial_state(1))  # fmt: skip
+        self.step_count, self.wall_offsets = 0, [0.0] * n
+        if runs[0].checkpoint is not None:
+            self.restore([run.checkpoint for run in runs])
+        if len(rows := set(self.envs.ball_row.tolist())) > 1:
+            raise ValueError(f"a batch's runs must be at the same step of their episodes (their "
+                             f"balls on one row); these are on rows {sorted(rows)}")  # fmt: skip
+        self.uniforms = ActionUniforms(self.rngs, self.device)
+        self.eval_envs: TorchCatchVectorEnv | None = None
+        # each run's running totals of Shared.STATS (RunLog's scalars)
+        shape = (n, len(WorkerStats.INDEX))
+        self.stats = torch.zeros(shape, dtype=torch.float64, device=self.device)
+
+    def restore(self, checkpoints: list[Checkpoint]) -> None:
+        """Every run from its checkpoint (all at one step): theta, the RMSprop statistics, the
+        worker's generator, env and frames (and an LSTM's carried state)."""
+        (self.step_count,) = {c.global_step for c in checkpoints}
+        with torch.no_grad():
+            for i, checkpoint in enumerate(checkpoints):
+                for j, name in enumerate(self.names):
+                    self.params[j][i] = checkpoint.model[name]
+                    self.optimizer.square_avg[j][i] = checkpoint.optimizer["square_avg"][j]
+                for name, stacked in self.buffers.items():
+                    if name in checkpoint.model:
+                        stacked[i] = checkpoint.model[name]
+                rng_state, env_state, _, *carried = checkpoint.workers[0]
+                for stacked, saved in zip(self.state, carried[0] if carried else (), strict=True):
+                    stacked[i] = saved
+                self.rngs[i].bit_generator.state = rng_state["bit_generator"]
+                self.envs.set_numpy_state(i, arrays_of(env_state["env"]))
+                self.wall_offsets[i] = checkpoint.wall_time
+
+    def set_progress(self) -> None:
+        """GLPQ's tau schedule at this step, as its worker and evaluator set it, and the 1/tau
+        of its loss correction."""
+        if hasattr(self.base, "set_progress"):
+            self.base.set_progress(self.step_count / self.total)
+        scale = getattr(self.base, "policy_loss_scale", None)
+        self.loss_scale = scale() if scale is not None else 1.0
+
+    def forward(self, params: list, buffers: dict, frames: torch.Tensor, state: tuple) -> Any:
+        """One run's network, its parameters substituted: (log-probs, values[, state])."""
+        weights = {**dict(zip(self.names, params, strict=True)), **buffers}
+        return functional_call(self.base, weights, (frames, state) if state else (frames,))
+
+    def act(self, frames: torch.Tensor, state: tuple = ()) -> tuple:
+        """Every run's forward of frames (N, B, 4, 84, 84): log-probs (N, B, A), values (N, B)
+        and (LSTM) the state after the step. In grad mode, though nothing requires a gradient:
+        acting shortcuts that compare data (LWS's cache, torch.equal) are taken only without
+        it, and vmap cannot batch them; the values are the same."""
+        with torch.enable_grad():
+            if not state:
+                return (*vmap(self.forward)(self.params, self.buffers, frames, ()), ())
+            log_probs, values, state = vmap(self.forward)(
+                self.params, self.buffers, frames[:, None], state
+            )  # LSTM: T = 1
+            return log_probs[:, 0], values[:, 0], state
+
+    def loss(self, params, buffers, frames, actions, returns, state):  # noqa: ANN001, ANN201
+        a = self.args[0]
+        if state:  # LSTM: the rollout (T = n, B = 1) replayed from its start state
+            log_probs, values, _ = self.forward(params, buffers, frames, state)
+            log_probs, values = log_probs.flatten(0, 1), values.flatten(0, 1)
+        else:
+            log_probs, values = self.forward(params, buffers, frames, ())
+        loss, policy_loss, value_loss, entropy = self.module.a3c_loss(
+            log_probs, actions, values, returns, a.ent_coef, a.vf_coef, a.value_loss_form
+        )
+        if hasattr(self.module, "tau_corrected_loss"):  # GLPQ: the policy loss times 1/tau
+            loss = self.module.tau_corrected_loss(loss, policy_loss, entropy, self.loss_scale, a)
+        return loss, (policy_loss, value_loss, entropy)
+
+    def update(self) -> int:
+        """One rollout of up to t_max steps in every run, and its update; returns its steps."""
+        a, n_runs, envs, t_max = self.args[0], len(self.runs), self.envs, self.args[0].t_max
+        self.set_progress()
+        frames = torch.empty((t_max + 1, n_runs, 4, 84, 84), dtype=torch.uint8, device=self.device)
+        frames[0] = envs.stack
+        actions = torch.zeros((t_max, n_runs), dtype=torch.int64, device=self.device)
+        rewards = torch.zeros((t_max, n_runs), dtype=torch.float32, device=self.device)
+        dones = np.zeros((t_max, n_runs), dtype=bool)
+        rollout_state = tuple(s.clone() for s in self.state)  # (LSTM: the rollout's start)
+        with torch.no_grad():
+            for t in range(t_max):
+                log_probs, _, self.state = self.act(network_frames(frames[t][:, None]), self.state)
+                actions[t] = sample_actions(log_probs[:, 0].float().exp(), self.uniforms.next())
+                frames[t + 1], rewards[t], _, ended = envs.step(actions[t])
+                if ended.any():  # all together: the runs' balls started on one row
+                    dones[t] = True
+                    self.add_stats(episodes=1.0, return_sum=envs.final_returns,
+                                   length_sum=envs.final_lengths)  # fmt: skip
+                    self.state = tuple(torch.zeros_like(s) for s in self.state)  # (LSTM)
+                    break
+            n = t + 1
+            bootstrap = np.zeros(n_runs, dtype=np.float32)
+            if not dones[n - 1].all():  # V(s_n), as the worker's learning pass computes it
+                bootstrap = self.act(network_frames(frames[n][:, None]), self.state)[1][:, 0]
+                bootstrap = bootstrap.float().cpu().numpy()
+        done_values = np.zeros((n, n_runs), dtype=np.float32)  # (Catch never truncates)
+        returns = self.module.n_step_returns(
+            rewards[:n].cpu().numpy(), dones[:n], done_values, bootstrap, a.gamma
+        )
+        rollout = frames[:n].transpose(0, 1)  # (N, n, 4, 84, 84); LSTM: (N, T = n, B = 1, ...)
+        grads, (policy_loss, value_loss, entropy) = vmap(grad(self.loss, has_aux=True))(
+            self.params,
+            self.buffers,
+            network_frames(rollout[:, :, None] if self.state else rollout),
+            actions[:n].T.contiguous(),
+            torch.as_tensor(returns.T.copy(), device=self.device),
+            rollout_state,
+        )
+        self.last_actions = actions[:n].T  # (N, n), for the equivalence tests
+        grad_norm = clip_stacked(grads, a.grad_clip_mode, a.grad_clip)
+        lrs = [annealed_lr(args, self.step_count) for args in self.args]
+        self.optimizer.step(grads, torch.tensor(lrs, dtype=torch.float32, device=self.device))
+        self.step_count += n
+        self.add_stats(updates=1.0, policy_loss=policy_loss, value_loss=value_loss,
+                       entropy=entropy, grad_norm=grad_norm)  # fmt: skip
+        return n
+
+    def add_stats(self, **totals: float | torch.Tensor) -> None:
+        """Add to every run's totals by name, as a worker to its WorkerStats: a number for all
+        runs or a tensor (N,) of each run's."""
+        for name, value in totals.items():
+            self.stats[:, WorkerStats.INDEX[name]] += value
+
+    def network(self, i: int) -> dict[str, torch.Tensor]:
+        """Run i's state dict: its parameters and persistent buffers."""
+        stacked = {**dict(zip(self.names, self.params, strict=True)), **self.buffers}
+        return {name: stacked[name][i].detach().cpu().clone() for name in self.saved_names}
+
+    def evaluate(self) -> list[dict]:
+        """Every run's evaluation at this step as the runtime's `evaluate_network` plays it (its
+        episode seeds and action choice), the runs' games on one torch Catch of N x
+        --eval-episodes games, their networks in one vmapped forward per step."""
+        start, n, episodes = time.time(), len(self.runs), self.args[0].eval_episodes
+        self.set_progress()
+        step = self.step_count
+        keys = [evaluation_randomness(args.seed, step, episodes) for args in self.args]
+        if self.eval_envs is None or self.eval_envs.num_envs != n * episodes:
+            self.eval_envs = TorchCatchVectorEnv(n * episodes, self.device)
+        obs = self.eval_envs.reset(seed=[seed for seeds, _ in keys for seed in seeds])
+        # LSTM: a zero state per episode, as evaluate_network starts each
+        state = tuple(s.new_zeros(n, episodes, s.shape[-1]) for s in self.state)
+        ended = torch.zeros(1, dtype=torch.bool)
+        with torch.no_grad():  # (not inference mode: the env's tensors are updated outside it)
+            while not ended.any():  # Catch's games all end at their 15th step
+                frames = network_frames(obs.view(n, episodes, -1, 84, 84))
+                log_probs, _, state = self.act(frames, state)
+                actions = [
+                    evaluation_actions(log_probs[i].cpu(), args.eval_greedy, generator)
+                    for i, (args, (_, generator)) in enumerate(zip(self.args, keys, strict=True))
+                ]
+                obs, _, _, ended = self.eval_envs.step(torch.cat(actions).to(self.device))
+        scores = self.eval_envs.final_returns.view(n, episodes).cpu().numpy()
+        seconds = (time.time() - start) / n
+        return [{"global_step": step, "scores": scores[i].tolist(), "seconds": seconds}
+                for i in range(self.shown)]  # fmt: skip
+
+    def worker_state(self, i: int) -> tuple:
+        """Run i's worker as its script's `worker_state()` gives it to a checkpoint: its
+        generator, env and frames (and an LSTM's carried state)."""
+        parts = (self.uniforms.generator(i), NumpyStateView(self.envs, i),
+                 self.envs.stack[i : i + 1].cpu().numpy())  # fmt: skip
+        if self.state:
+            parts += (tuple(s[i].cpu().clone() for s in self.state),)
+        return parts
+
+    def checkpoint(self, i: int, run_dir: Path, wall_time: float) -> None:
+        snapshot = {
+            "model": self.network(i),
+            "optimizer": {"square_avg": [s[i].cpu().clone() for s in self.optimizer.square_avg]},
+            "global_step": self.step_count,
+            "workers": {0: saved_state(self.worker_state(i))},
+            "pending_evaluations": [],
+        }
+        shared = SimpleNamespace(model=self.cpu_model, global_step=lambda: self.step_count)
+        save_checkpoint(run_dir / "checkpoint.pt", shared, self.args[i], wall_time,
+                        self.agent.script, snapshot)  # fmt: skip
+
+
+def set_up_device(device: str) -> None:
+    """torch's settings for a batch on this device (the benchmarks' too)."""
+    if device == "cuda":  # fp32 as the scripts compute it, and the same run twice the same:
+        torch.backends.cudnn.allow_tf32 = False  # no TF32, cuDNN's deterministic algorithms
+        torch.backends.cuda.matmul.allow_tf32 = False
+        torch.backends.cudnn.deterministic = True
+        torch.backends.cudnn.benchmark = False
+    else:  # one core, as one process-backend run uses
+        torch.set_num_threads(1)
+
+
+def allow_open_files(count: int) -> None:
+    """Raise the soft limit of open files to `count` where it is lower (up to the hard limit): a
+    batch holds FILES_PER_RUN per run, past the common 1,024 at a few hundred runs."""
+    try:
+        import resource
+    except ImportError:  # (not POSIX)
+        return
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < count:
+        wanted = count if hard == resource.RLIM_INFINITY else min(count, hard)
+        if wanted > soft:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (wanted, hard))
+
+
+def train_batched(
+    module: ModuleType,
+    runs: list[BatchedRun],
+    device: str = "cpu",
+    should_stop: Callable[[], str | None] = lambda: None,
+    log_interval: float = 30.0,
+) -> list[dict]:
+    """Train the runs as one batch to their --total-timesteps, each run's folder locked (the
+    runtime's lock, where the caller took none) and written by the runtime's RunLog
+    (evaluations.csv, TensorBoard scalars, progress lines in stdout.log) and checkpoints.
+    Returns each run's outcome: "done" or "stopped by <signal>", its wall time and closing line.
+    should_stop() names the signal that stops the batch, or None: a stop checkpoints every run
+    at its last update. log_interval: seconds between the batch's console lines."""
+    set_up_device(device)
+    batch = BatchedA3C(module, runs, device)  # (refuses runs it cannot batch: nothing written)
+    allow_open_files(FILES_PER_RUN * len(runs) + 256)
+    folders, logs, consoles = [], [], []
+    try:
+        for run in runs[: batch.shown]:
+            folders.append(run.folder or RunFolder(Path(run.args.run_dir)))
+            consoles.append(open(folders[-1].path / "stdout.log", "a"))  # noqa: SIM115
+            logs.append(RunLog(folders[-1].path, run.args, batch.wall_offsets[len(logs)],
+                               resumed_step=batch.step_count, console=consoles[-1]))  # fmt: skip
+        stopped_by = train_logged(batch, [f.path for f in folders], logs, should_stop,
+                                  log_interval)  # fmt: skip
+        outcomes = []
+        for log, console, folder in zip(logs, consoles, folders, strict=True):
+            log.close()
+            last = log.last_eval or {"global_step": batch.step_count, "mean_return": float("nan")}
+            outcome = f"stopped by {stopped_by}" if stopped_by else "done"
+            line = (f"{outcome}: {'last' if stopped_by else 'final'} eval "
+                    f"{last['mean_return']:.3f} at step {last['global_step']:,} | batched with "
+                    f"{len(logs)} runs | {batch.step_count:,} steps | {folder.path}")  # fmt: skip
+            console.write(line + "\n")
+            outcomes.append({"outcome": outcome, "wall_time_s": log.wall_time(), "stdout": line})
+        return outcomes
+    except BaseException:
+        for log in logs:
+            log.close(quietly=True)
+        raise
+    finally:
+        for console in consoles:
+            console.close()
+        for run, folder in zip(runs, folders, strict=False):
+            if run.folder is None:  # the lock taken here
+                folder.close()
+
+
+def train_logged(
+    batch: BatchedA3C,
+    run_dirs: list[Path],
+    logs: list[RunLog],
+    should_stop: Callable[[], str | None],
+    log_interval: float,
+) -> str | None:
+    """train_batched's loop: the updates, each run's evaluations and checkpoints at the marks
+    (the runtime's MarkClock, as a worker's), its scalars every --log-interval seconds, and its
+    last checkpoint and final evaluation. Returns the signal that stopped it, or None."""
+    a, start_step = batch.args[0], batch.step_count
+    clock = MarkClock(torch.empty(2, dtype=torch.int64), a, start_step)
+    # (a resumed run's evaluation of its checkpoint's step may be logged already)
+    logged = [logged_steps(log.csv_path, start_step) for log in logs]
+
+    def evaluate_all() -> None:
+        if all(batch.step_count in steps for steps in logged):
+            return
+        for log, steps, result in zip(logs, logged, batch.evaluate(), strict=True):
+            if batch.step_count not in steps:
+                log.evaluation(result)
+                steps.add(batch.step_count)
+
+    def checkpoint_all() -> None:
+        for i, (run_dir, log) in enumerate(zip(run_dirs, logs, strict=True)):
+            batch.checkpoint(i, run_dir, log.wall_time())
+
+    if start_step == 0:
+        evaluate_all()  # the untrained network's, as every run's first row
+    last_log = last_progress = (time.time(), start_step)
+    stats = batch.stats.to("cpu", copy=True)
+    stopped_by = None
+    while batch.step_count < batch.total and not (stopped_by := should_stop()):
+        batch.update()
+        step = batch.step_count
+        evaluate, checkpoint = clock.reached(step)
+        if evaluate:
+            evaluate_all()
+        if checkpoint:
+            checkpoint_all()
+        now = time.time()
+        if now - last_progress[0] >= a.log_interval:  # each run's scalars, as a run logs them
+            sps = (step - last_progress[1]) / (now - last_progress[0])
+            new_stats = batch.stats.to("cpu", copy=True)
+            for i, log in enumerate(logs):
+                log.progress(step, sps, annealed_lr(batch.args[i], step), new_stats[i] - stats[i])
+            last_progress, stats = (now, step), new_stats
+        if now - last_log[0] >= log_interval:
+            sps = (step - last_log[1]) * len(logs) / (now - last_log[0])
+            print(f"batched: {len(logs)} runs at step {step:,}/{batch.total:,} | "
+                  f"{sps:,.0f} run-steps/s", flush=True)  # fmt: skip
+            last_log = (now, step)
+    checkpoint_all()  # every run's last checkpoint, as a run's last
+    if not stopped_by:
+        evaluate_all()
+    return stopped_by
