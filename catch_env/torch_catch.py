@@ -211,11 +211,15 @@ class TorchCatchVectorEnv:
 
 
 class NumpyStateView:
-    """One game of a TorchCatchVectorEnv with the `get_state()` of the NumPy env it stands for,
-    so that a3c_runtime.snapshots.saved_state keeps it in a checkpoint as the script's env."""
+    """One game of a TorchCatchVectorEnv with the `get_state()` and `set_state()` of the NumPy
+    env it stands for, so that a3c_runtime.snapshots keeps and restores it in a checkpoint as
+    the script's env."""
 
     def __init__(self, envs: TorchCatchVectorEnv, env: int):
         self.envs, self.env = envs, env
 
     def get_state(self) -> dict[str, Any]:
         return self.envs.numpy_state(self.env)
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        self.envs.set_numpy_state(self.env, state)

@@ -44,7 +44,7 @@ from .hogwild import (
 )
 from .run_folder import RunFolder
 from .run_log import RunLog, logged_steps
-from .snapshots import MarkClock, arrays_of, saved_state
+from .snapshots import MarkClock, restored_state, saved_state
 
 UNIFORM_BLOCK = 256  # action uniforms drawn per run at a time
 FILES_PER_RUN = 4  # held open by a batch: the folder's lock, evaluations.csv, events, stdout.log
@@ -152,11 +152,11 @@ class BatchedA3C:
                 for name, stacked in self.buffers.items():
                     if name in checkpoint.model:
                         stacked[i] = checkpoint.model[name]
-                rng_state, env_state, _, *carried = checkpoint.workers[0]
-                for stacked, saved in zip(self.state, carried[0] if carried else (), strict=True):
+                # the worker's generator, env (and LSTM state) as a worker restores its own
+                fresh = (self.rngs[i], NumpyStateView(self.envs, i), None, self.state)
+                parts = restored_state(checkpoint.workers[0], fresh[: 3 + bool(self.state)])
+                for stacked, saved in zip(self.state, parts[3] if self.state else (), strict=True):
                     stacked[i] = saved
-                self.rngs[i].bit_generator.state = rng_state["bit_generator"]
-                self.envs.set_numpy_state(i, arrays_of(env_state["env"]))
                 self.wall_offsets[i] = checkpoint.wall_time
 
     def set_progress(self) -> None:
