@@ -27,8 +27,8 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
 - `campaign`: a fixed plan of sweeps run in its order over sessions, resumable, with its
   progress (results/campaign/plan.toml).
 
-`batched` is the sweep's batched backend (`--backend batched`: a sweep's runs as one program on
-one device, docs/reproducing.md), and `torch_catch` its Catch-v0 in torch.
+`batched` is the sweep's side of the batched backend (`--backend batched`: which runs it can
+batch, and the sweep's runs as batches of the runtime's a3c_runtime.batched, docs/reproducing.md).
 
 Nothing runs at import; the tools' own dependencies (matplotlib, scipy, rliable) are the `tools`
 extra.

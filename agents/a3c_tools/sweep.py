@@ -104,7 +104,7 @@ Backends.
   OUT/runs/<run_id>/ when the run ran on another node, so OUT need not be a shared file system.
   A task whose node dies is retried by Ray (3 times, its default), from scratch.
 - batched (`--backend batched`, `--device cpu|cuda`): the runs as one batched program on one
-  device (a3c_tools.batched): run i is the script's own one-worker run with its seed and flags
+  device (a3c_runtime.batched): run i is the script's own one-worker run with its seed and flags
   (tests/test_batched.py), the same run in any batch (tests/test_batched_invariance.py), its
   folder gets what a run writes (evaluations.csv, TensorBoard scalars, checkpoint.pt,
   stdout.log), locked as a run locks it (a run in use elsewhere is left alone, as above). It
