@@ -41,6 +41,22 @@ def test_catch_env_does_not_import_torch():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+def test_catch_env_works_without_torch_and_its_torch_env_says_what_it_needs():
+    """With torch absent (blocked in sys.modules), Catch-v0 makes, resets and steps, and only
+    catch_env.torch_catch fails, in one line naming the extra to install."""
+    code = (
+        "import sys; sys.modules['torch'] = None\n"
+        "import gymnasium as gym, catch_env\n"
+        "env = gym.make('Catch-v0'); env.reset(seed=0); env.step(0)\n"
+        "try:\n    import catch_env.torch_catch\nexcept ImportError as e:\n    print(e)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == (
+        'catch_env.torch_catch needs torch: pip install "catch-env[torch]" (or torch)'
+    )
+
+
 @pytest.mark.skipif(shutil.which("ruff") is None, reason="ruff is in the [test] extra")
 @pytest.mark.parametrize("command", [["ruff", "check", "."], ["ruff", "format", "--check", "."]])
 def test_ruff_clean(command):
