@@ -22,6 +22,7 @@ from typing import Annotated, Any, Literal
 import torch
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
+from .catch_state import catch_layout, catch_problem, part_at
 from .flags import UsageError
 
 CHECKPOINT_FORMAT = "a3c-checkpoint-v3"  # safetensors with a declared document
@@ -192,32 +193,6 @@ def storage_bytes(tensor: torch.Tensor) -> int:
     return tensor.untyped_storage().nbytes() - tensor.storage_offset() * tensor.element_size()
 
 
-@functools.cache
-def catch_layout() -> dict[str, tuple[str, tuple[int, ...]]]:
-    """The arrays of a Catch vector env's state (catch_env.wrappers' get_state, its generators
-    apart) by path, with their dtypes and their shapes after the leading one (the env count)."""
-    from catch_env.wrappers import make_vector_env
-
-    envs = make_vector_env("Catch-v0", 1)
-    envs.reset(seed=0)
-    layout, todo = {}, [("", envs.get_state())]
-    while todo:
-        path, value = todo.pop()
-        if isinstance(value, dict):
-            todo += [(f"{path}{k}/", v) for k, v in value.items() if k != "rngs"]
-        elif isinstance(value, list):
-            todo += [(f"{path}{i}/", v) for i, v in enumerate(value)]
-        else:
-            layout[path[:-1]] = (DTYPE_NAMES[torch.from_numpy(value).dtype], value.shape[1:])
-    return dict(sorted(layout.items()))
-
-
-def part_at(state: dict, path: str) -> Any:
-    for key in path.split("/"):
-        state = state[int(key) if isinstance(state, list) else key]
-    return state
-
-
 def check_checkpoint_path(path: str, flag: str | None = None) -> None:
     """UsageError unless path is a file: a missing path, or a folder (naming the checkpoint in
     it, if it holds one, as `flag PATH`)."""
@@ -303,8 +278,9 @@ def problem_of(error: Exception) -> str:
 
 def read_tensors(data: bytes, document: dict, path: str) -> dict[str, Any]:
     """The tensors of a checkpoint's bytes (read_checkpoint's; their table already matched the
-    network's), checked (finite: NaN or inf is a run that diverged; mean squares not negative),
-    in the form the runtime holds them: `model`, `optimizer`, `workers` (each worker's state as
+    network's), checked (finite: NaN or inf is a run that diverged; mean squares not negative;
+    a worker's Catch games in a state they reach, a3c_runtime.catch_state), in the form the
+    runtime holds them: `model`, `optimizer`, `workers` (each worker's state as
     a3c_runtime.snapshots.saved_state gives it) and `pending_evaluations`."""
     import safetensors.torch
 
@@ -332,6 +308,10 @@ def read_tensors(data: bytes, document: dict, path: str) -> dict[str, Any]:
         prefix = f"workers/{worker_id}"
         env = None
         if worker["env"] is not None:  # the nested form catch_env's get_state gives
+            arrays = {name: tensors[f"{prefix}/env/{name}"] for name in catch_layout()}
+            problem = catch_problem(arrays, tensors[f"{prefix}/frames"])
+            if problem is not None:
+                raise UsageError(f"checkpoint {path!r} is malformed: its {prefix}/{problem}")
             env = {"env": {"rngs": [generator_state(s) for s in worker["env"]]}}
             for name in catch_layout():
                 *parents, last = f"env/{name}".split("/")

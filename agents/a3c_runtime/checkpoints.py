@@ -18,6 +18,7 @@ from typing import Any
 import torch
 import torch.nn as nn
 
+from .catch_state import catch_layout
 from .checkpoint_file import (  # noqa: F401  (the names callers import from here)
     CHECKPOINT_FORMAT,
     DTYPE_NAMES,
@@ -27,7 +28,6 @@ from .checkpoint_file import (  # noqa: F401  (the names callers import from her
     PARTIAL_SUFFIX,
     Entry,
     WriteFailed,
-    catch_layout,
     check_checkpoint_path,
     convert_command,
     encode,
