@@ -1,13 +1,14 @@
 """a3c_runtime.snapshots: a worker whose update reaches an evaluation or checkpoint mark copies
 theta there (and, with one worker, its own state), and a resumed worker gets its state back."""
 
-import io
 import pickle
 import queue
 import time
 
+import a3c_runtime as runtime
 import numpy as np
 import pytest
+import safetensors.torch
 import torch
 from a3c_runtime.snapshots import (
     CHECKPOINT,
@@ -92,41 +93,42 @@ class NoState:
     """A part of a worker's state with no safe form (as ale-py's C++ vector env)."""
 
 
-def safely_loaded(value):
-    buffer = io.BytesIO()
-    torch.save(value, buffer)
-    return torch.load(io.BytesIO(buffer.getvalue()), weights_only=True)
-
-
-def test_a_resumed_worker_gets_what_was_saved_and_keeps_the_rest():
-    """The state goes through torch.load(weights_only=True), as a checkpoint's does: the
-    generator, the frames, an LSTM's state and Catch's envs come back, the envs playing on as
-    the saved ones do; a part with no safe form is the fresh one."""
+def test_a_resumed_worker_gets_what_was_saved_and_keeps_the_rest(tmp_path):
+    """The state goes through a checkpoint as a run writes it (save_checkpoint) and --resume
+    reads it (load_checkpoint, the gate): the generator, the frames, an LSTM's state and Catch's
+    envs come back, the envs playing on as the saved ones do; a part with no such form (as
+    ale-py's C++ vector env) is not saved, and a resumed worker keeps the fresh one."""
     from catch_env.wrappers import make_vector_env
 
+    module = load_script("a3c_lstm")
+    args = tiny_args(module, envs_per_worker=3)
+    shared = shared_for(module, args)
     envs = make_vector_env("Catch-v0", 3)
     envs.reset(seed=4)
     for t in range(7):
-        envs.step(np.array([t % 3, 1, 2]))
-    frames, lstm = np.arange(6, dtype=np.uint8), (torch.ones(2), torch.zeros(3))
-    saved = safely_loaded(saved_state((np.random.default_rng(3), envs, frames, lstm, NoState())))
-    assert saved[4] is None  # not saved, made afresh on resume
+        frames = envs.step(np.array([t % 3, 1, 2]))[0].copy()
+    lstm = tuple(torch.rand_like(s) for s in shared.model.initial_state(3))
+    workers = {0: saved_state((np.random.default_rng(3), envs, frames, lstm)),
+               1: saved_state((np.random.default_rng(5), NoState(), frames, lstm))}  # fmt: skip
+    path = tmp_path / "checkpoint.pt"
+    runtime.save_checkpoint(path, shared, args, 1.0, module.AGENT.script, {"workers": workers})
+    saved = runtime.load_checkpoint(str(path), module.AGENT).workers
+    assert saved[1][1] is None  # not saved, made afresh on resume
     fresh_envs, no_state = make_vector_env("Catch-v0", 3), NoState()
     fresh_envs.reset(seed=99)
-    fresh = (np.random.default_rng(9), fresh_envs, np.zeros(6, dtype=np.uint8), None, no_state)
-    rng, restored_envs, obs, state, kept = restored_state(saved, fresh)
+    fresh = (np.random.default_rng(9), fresh_envs, np.zeros_like(frames), None)
+    rng, restored_envs, obs, state = restored_state(saved[0], fresh)
     assert rng.random() == np.random.default_rng(3).random()
-    assert obs.dtype == np.uint8 and obs.tolist() == frames.tolist()
-    assert isinstance(state, tuple) and state[0].tolist() == [1, 1] and kept is no_state
+    assert obs.dtype == np.uint8 and np.array_equal(obs, frames)
+    assert isinstance(state, tuple) and all(map(torch.equal, state, lstm))
     assert restored_envs is fresh_envs
     for t in range(40):  # the same games on: frames, rewards, ends, and new games' starts
         actions = np.array([t % 3, (t + 1) % 3, 0])
         ours, theirs = restored_envs.step(actions), envs.step(actions)
         for a, b in zip(ours[:4], theirs[:4], strict=True):
             assert np.array_equal(a, b)
-    module = load_script("a3c_ff")
-    args = tiny_args(module)
-    shared = shared_for(module, args)
+    rng, kept, obs, _ = restored_state(saved[1], (np.random.default_rng(9), no_state, obs, None))
+    assert kept is no_state and rng.random() == np.random.default_rng(5).random()
     shared.marks.start(0, args, {"0": saved_state((np.arange(2),))})
     assert shared.resumed(0, np.zeros(2))[0].tolist() == [0, 1]
     assert shared.resumed(1, "fresh") == ("fresh",)  # a worker the checkpoint did not keep
@@ -184,7 +186,9 @@ def test_a_marks_checkpoint_holds_the_optimizer_statistics_of_its_step(
         due = step >= int(self.marks[1])
         reached(self, shared, worker_id, step, state)
         if due:  # in the worker, just after its snapshot: the statistics of the mark's step
-            torch.save(shared.optimizer.state_dict(), at_step / f"{step}.pt")
+            square_avg = shared.optimizer.state_dict()["square_avg"]
+            recorded = {str(i): s.contiguous().clone() for i, s in enumerate(square_avg)}
+            safetensors.torch.save_file(recorded, at_step / str(step))
 
     monkeypatch.setattr(StepMarks, "reached", recorded_reached)  # the worker forks with it
     written = []
@@ -204,13 +208,12 @@ def test_a_marks_checkpoint_holds_the_optimizer_statistics_of_its_step(
     marks = [c for c in written if c["global_step"] < 300]
     assert len(marks) == 2  # the first steps at or past 100 and 200
     for checkpoint in marks:
-        then = torch.load(at_step / f"{checkpoint['global_step']}.pt", weights_only=True)
-        for saved, expected in zip(
-            checkpoint["optimizer"]["square_avg"], then["square_avg"], strict=True
-        ):
+        then = safetensors.torch.load_file(at_step / str(checkpoint["global_step"]))
+        then = [then[str(i)] for i in range(len(then))]
+        for saved, expected in zip(checkpoint["optimizer"]["square_avg"], then, strict=True):
             assert torch.equal(saved, expected)
     last = written[-1]["optimizer"]["square_avg"]
-    assert not all(torch.equal(a, b) for a, b in zip(last, then["square_avg"], strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(last, then, strict=True))
 
 
 def test_a_saved_worker_state_is_a_copy_of_its_arrays_at_that_moment():
