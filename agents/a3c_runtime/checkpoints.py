@@ -9,7 +9,6 @@ older format (a torch zip) are read only by python -m a3c_tools.convert_checkpoi
 
 import functools
 import re
-import types
 import typing
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Any
 
 import torch
 import torch.nn as nn
+from pydantic import TypeAdapter, ValidationError
 
 from .catch_state import catch_layout
 from .checkpoint_file import (  # noqa: F401  (the names callers import from here)
@@ -299,25 +299,17 @@ def fit_problem(expected: dict[str, tuple], table: dict[str, Entry]) -> str | No
 
 def of_type(value: Any, hint: Any) -> bool:
     """Whether value is of the type a flag's annotation names (bool, int, float, str, None,
-    a Literal, a union of them); an annotation of another kind is not checked."""
-    origin = typing.get_origin(hint)
-    if origin is typing.Annotated:
-        return of_type(value, typing.get_args(hint)[0])
-    if origin is typing.Literal:
-        return any(type(value) is type(c) and value == c for c in typing.get_args(hint))
-    if origin in (typing.Union, types.UnionType):
-        return any(of_type(value, option) for option in typing.get_args(hint))
-    if hint is type(None):
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if hint is str:
-        return isinstance(value, str)
+    a Literal, a union of them; Annotated's metadata aside), as pydantic's strict mode says."""
+    try:
+        flag_type(hint).validate_python(value, strict=True)
+    except ValidationError:
+        return False
     return True
+
+
+@functools.cache
+def flag_type(hint: Any) -> TypeAdapter:
+    return TypeAdapter(hint)
 
 
 def moved_script(checkpoint: Checkpoint) -> tuple[str, str, Any] | None:
