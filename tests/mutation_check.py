@@ -279,8 +279,7 @@ MUTANTS = [
            "state = tuple(s[: len(still_running)] for s in state)", (EVALUATION_T,)),
     Mutant("evaluation-at-t-max-twice", "the update that reaches T_max exactly hands the "
            "evaluator an evaluation of its own besides the run's final one", SNAPSHOTS,
-           "if step < self.total:  # the evaluation at T_max is the run's final one",
-           "if step <= self.total:  # the evaluation at T_max is the run's final one", (TRAIN,)),
+           "evaluate = step < self.total", "evaluate = step <= self.total", (TRAIN, BATCH_T)),
     Mutant("resume-of-a-run-ended-at-t-max-runs-again", "a run that ended exactly at T_max is "
            "not finished when resumed: it evaluates its end again", RUN,
            "    return step >= args.total_timesteps and",

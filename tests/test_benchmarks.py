@@ -305,3 +305,29 @@ def test_batched_profile_refuses_bad_input_in_one_line(flags, says, monkeypatch,
     result = run("batched_profile.py", *flags, monkeypatch=monkeypatch, capsys=capsys)
     assert result.returncode == 2 and says in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_against_commit_reports_both_trees_figures_and_their_ratio(tmp_path, monkeypatch, capsys):
+    """Both trees run the command by turns (here one that prints the number of files in the
+    tree's benchmarks/), and the report gives each tree's figure per round, their means and the
+    ratio; the worktree is removed after."""
+    command = f"{sys.executable} -c \"import os; print('files:', len(os.listdir('benchmarks')))\""
+    out = tmp_path / "report.txt"
+    flags = ["HEAD", "--rounds", "2", "--out", str(out)]
+    flags += ["--measure", "files", r"^files: (\d+)", command]
+    result = run("against_commit.py", *flags, monkeypatch=monkeypatch, capsys=capsys)
+    assert result.returncode == 0, result.stderr
+    files = len(os.listdir(ROOT / "benchmarks"))
+    line = result.stdout.splitlines()[-1]
+    assert line.startswith("files: HEAD ") and f"this tree {files}, {files} (mean {files})" in line
+    assert re.search(r"ratio \d\.\d{3}$", line)
+    assert out.read_text().splitlines()[-1] == line
+    worktrees = os.popen(f"git -C {ROOT} worktree list").read()
+    assert str(tmp_path) not in worktrees and "/base " not in worktrees
+
+
+def test_against_commit_names_a_command_that_prints_no_figure(monkeypatch, capsys):
+    result = run("against_commit.py", "HEAD", "--rounds", "1", "--measure", "x", r"^never (\d+)",
+                 "true", monkeypatch=monkeypatch, capsys=capsys)  # fmt: skip
+    assert result.returncode == 1
+    assert "printed no line matching '^never (\\\\d+)'" in result.stderr
