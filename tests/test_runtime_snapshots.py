@@ -70,7 +70,7 @@ def test_no_snapshot_outside_a_run_and_none_of_a_worker_of_several():
     module = load_script("a3c_ff")
     args = tiny_args(module, eval_interval=100, checkpoint_interval=100)
     shared = shared_for(module, args)
-    assert int(shared.marks.marks.min()) == NEVER  # a worker called alone (tests) sends nothing
+    assert int(shared.marks.clock.marks.min()) == NEVER  # a worker alone (tests) sends nothing
     shared.count_steps(0, 500, lambda: ("state",))
     shared.finish_worker(0, lambda: ("state",))
     assert events(shared) == []
@@ -183,7 +183,7 @@ def test_a_marks_checkpoint_holds_the_optimizer_statistics_of_its_step(
     reached = StepMarks.reached
 
     def recorded_reached(self, shared, worker_id, step, state):
-        due = step >= int(self.marks[1])
+        due = step >= int(self.clock.marks[1])
         reached(self, shared, worker_id, step, state)
         if due:  # in the worker, just after its snapshot: the statistics of the mark's step
             square_avg = shared.optimizer.state_dict()["square_avg"]

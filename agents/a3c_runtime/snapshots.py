@@ -15,10 +15,10 @@ updating theta while the copy is taken, and their own states are saved only when
 normally: evaluations are of theta at (about) their step, and a resumed run is a run like the
 stopped one, not the same run.
 
-A worker's state is kept in the form a checkpoint loads safely (`torch.load(weights_only=True)`:
-tensors, numbers, strings, lists, tuples and dicts), never pickled: its generator as its
-`bit_generator.state`, arrays as tensors, and its envs as their own `get_state()` (Catch's
-vector env and its frame stacks). What has no such form (ale-py's C++ vector env) is left out,
+A worker's state is kept as data, never pickled (a checkpoint stores it as flat tensors and its
+declared document, a3c_runtime.checkpoint_file): its generator as its `bit_generator.state`,
+arrays as tensors, and its envs as their own `get_state()` (Catch's vector env and its frame
+stacks). What has no such form (ale-py's C++ vector env) is left out,
 and a resumed run makes that part afresh (its envs start new games)."""
 
 from __future__ import annotations
