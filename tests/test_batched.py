@@ -507,10 +507,10 @@ def test_a_stopped_batch_resumes_to_the_run_it_would_have_been(tmp_path, name, f
 
 @pytest.mark.parametrize("name", ["a3c_ff", "a3c_lstm"])
 def test_each_runs_evaluation_is_the_runtimes_evaluation_of_its_network(name):
-    """After 3 updates, the batch's evaluation of each run (its N x 12 episodes on the torch env,
-    one vmapped forward per step) scores every episode as the runtime's evaluate_network scores
-    that run's network on the NumPy envs: the same episode seeds and action draws, sampled from
-    pi in one run and greedy (--eval-greedy) in the other. (LSTM: a state per episode.)"""
+    """After 3 updates, the batch's evaluation of each run scores every episode as the
+    runtime's evaluate_network scores that run's network, with that run's flags (its seed's
+    episodes and draws), sampled from pi in one run and greedy (--eval-greedy) in the other.
+    (LSTM: a state per episode.)"""
     module = load_script(name)
     runs_args = [
         tiny_args(
@@ -527,7 +527,7 @@ def test_each_runs_evaluation_is_the_runtimes_evaluation_of_its_network(name):
     batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cpu")
     for _ in range(3):
         batch.update()
-    results = batch.evaluate()
+    results = [batch.evaluate(i) for i in range(2)]
     for i, (args, result) in enumerate(zip(runs_args, results, strict=True)):
         network = module.AGENT.build_network(3, args)
         network.load_state_dict(batch.network(i))

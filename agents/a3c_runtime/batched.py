@@ -4,14 +4,15 @@ manner of PureJaxRL's vmapped training: the sweep's `--backend batched` (a3c_too
 Run i is the script's own one-worker run (`--num-workers 1`) with its seed and flags, and a run
 is the same run in any batch (tests/test_batched.py, tests/test_batched_invariance.py). What a
 run does is the code the worker and the runtime run: the script's network, `n_step_returns`,
-`a3c_loss` (and GLPQ's `tau_corrected_loss`), and the runtime's `sample_actions`,
-`clip_stacked`, `RMSprop`, `annealed_lr`, `evaluation_randomness` and `evaluation_actions`,
-`MarkClock`, `RunLog`, checkpoints and run folders. What is only this module's is the stacking:
-the N networks' parameters stacked (torch.func.stack_module_state) and called under vmap, the
-gradients by vmap(grad(loss)); each run's generator drawn in blocks (`ActionUniforms`); the
-runs' games on one torch Catch (catch_env.torch_catch); the runs' rollouts in lockstep (every
-game of Catch lasts 15 steps: the runs of a batch start with their balls on one row, checked
-here); and the loop that evaluates, checkpoints and logs each run at the marks.
+`a3c_loss` (and GLPQ's `tau_corrected_loss`); the runtime's `sample_actions`, `clip_stacked`,
+`RMSprop` and `annealed_lr`; its evaluations are the runtime's `evaluate_network` of the run's
+network, its marks the runtime's `MarkClock`, its logs `RunLog`, its checkpoints and worker
+state `save_checkpoint`, `saved_state` and `restored_state`. What is only this module's is the
+stacking: the N networks' parameters stacked (torch.func.stack_module_state) and called under
+vmap, the gradients by vmap(grad(loss)); each run's generator drawn in blocks
+(`ActionUniforms`); the runs' games on one torch Catch (catch_env.torch_catch) in lockstep
+(every game of Catch lasts 15 steps: the runs of a batch start with their balls on one row,
+checked here); and the loop that evaluates, checkpoints and logs each run at its marks.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from torch.func import functional_call, grad, stack_module_state, vmap
 from catch_env.torch_catch import NumpyStateView, TorchCatchVectorEnv
 
 from .checkpoints import Checkpoint, save_checkpoint
-from .evaluation import evaluation_actions, evaluation_randomness
+from .evaluation import evaluate_network, make_eval_envs
 from .hogwild import (
     RMSprop,
     WorkerStats,
@@ -114,6 +115,7 @@ class BatchedA3C:
         self.rngs = [np.random.default_rng(seed) for seed in seeds]
         self.cpu_model = models[0]  # the checkpoints' network
         self.base = copy.deepcopy(models[0]).to(self.device)
+        self.eval_model = copy.deepcopy(models[0]).to(self.device)  # a run's, for its evaluation
         params, buffers = stack_module_state(models)
         self.names = list(params)
         self.params = [params[k].detach().to(self.device) for k in self.names]
@@ -135,7 +137,7 @@ class BatchedA3C:
             raise ValueError(f"a batch's runs must be at the same step of their episodes (their "
                              f"balls on one row); these are on rows {sorted(rows)}")  # fmt: skip
         self.uniforms = ActionUniforms(self.rngs, self.device)
-        self.eval_envs: TorchCatchVectorEnv | None = None
+        self.eval_envs: list | None = None
         # each run's running totals of Shared.STATS (RunLog's scalars)
         shape = (n, len(WorkerStats.INDEX))
         self.stats = torch.zeros(shape, dtype=torch.float64, device=self.device)
@@ -258,33 +260,13 @@ class BatchedA3C:
         stacked = {**dict(zip(self.names, self.params, strict=True)), **self.buffers}
         return {name: stacked[name][i].detach().cpu().clone() for name in self.saved_names}
 
-    def evaluate(self) -> list[dict]:
-        """Every run's evaluation at this step as the runtime's `evaluate_network` plays it (its
-        episode seeds and action choice), the runs' games on one torch Catch of N x
-        --eval-episodes games, their networks in one vmapped forward per step."""
-        start, n, episodes = time.time(), len(self.runs), self.args[0].eval_episodes
-        self.set_progress()
-        step = self.step_count
-        keys = [evaluation_randomness(args.seed, step, episodes) for args in self.args]
-        if self.eval_envs is None or self.eval_envs.num_envs != n * episodes:
-            self.eval_envs = TorchCatchVectorEnv(n * episodes, self.device)
-        obs = self.eval_envs.reset(seed=[seed for seeds, _ in keys for seed in seeds])
-        # LSTM: a zero state per episode, as evaluate_network starts each
-        state = tuple(s.new_zeros(n, episodes, s.shape[-1]) for s in self.state)
-        ended = torch.zeros(1, dtype=torch.bool)
-        with torch.no_grad():  # (not inference mode: the env's tensors are updated outside it)
-            while not ended.any():  # Catch's games all end at their 15th step
-                frames = network_frames(obs.view(n, episodes, -1, 84, 84))
-                log_probs, _, state = self.act(frames, state)
-                actions = [
-                    evaluation_actions(log_probs[i].cpu(), args.eval_greedy, generator)
-                    for i, (args, (_, generator)) in enumerate(zip(self.args, keys, strict=True))
-                ]
-                obs, _, _, ended = self.eval_envs.step(torch.cat(actions).to(self.device))
-        scores = self.eval_envs.final_returns.view(n, episodes).cpu().numpy()
-        seconds = (time.time() - start) / n
-        return [{"global_step": step, "scores": scores[i].tolist(), "seconds": seconds}
-                for i in range(self.shown)]  # fmt: skip
+    def evaluate(self, i: int) -> dict:
+        """Run i's evaluation at this step: the runtime's `evaluate_network` of its network, the
+        process backend's evaluator's own code (its envs, episode keys and action choice)."""
+        if self.eval_envs is None:  # (--eval-episodes is the batch's: one set of envs)
+            self.eval_envs = make_eval_envs(self.agent, self.args[0], None)
+        self.eval_model.load_state_dict(self.network(i))
+        return evaluate_network(self.eval_model, self.eval_envs, self.step_count, self.args[i])
 
     def worker_state(self, i: int) -> tuple:
         """Run i's worker as its script's `worker_state()` gives it to a checkpoint: its
@@ -397,11 +379,9 @@ def train_logged(
     logged = [logged_steps(log.csv_path, start_step) for log in logs]
 
     def evaluate_all() -> None:
-        if all(batch.step_count in steps for steps in logged):
-            return
-        for log, steps, result in zip(logs, logged, batch.evaluate(), strict=True):
+        for i, (log, steps) in enumerate(zip(logs, logged, strict=True)):
             if batch.step_count not in steps:
-                log.evaluation(result)
+                log.evaluation(batch.evaluate(i))
                 steps.add(batch.step_count)
 
     def checkpoint_all() -> None:

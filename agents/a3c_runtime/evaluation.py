@@ -51,18 +51,24 @@ def play_episodes(
     scores = np.zeros(len(envs))
     running = list(range(len(envs)))
     recurrent = hasattr(model, "initial_state")
-    state = model.initial_state(len(envs)) if recurrent else None
+    device = next((p.device for p in model.parameters()), torch.device("cpu"))
+    state = tuple(s.to(device) for s in model.initial_state(len(envs))) if recurrent else None
     with torch.inference_mode():
         while running:
             if should_stop():
                 raise EvaluationInterrupted
-            batch = torch.from_numpy(np.stack([observations[i] for i in running]))
+            batch = torch.from_numpy(np.stack([observations[i] for i in running])).to(device)
             if recurrent:
                 log_probs, _, state = model(batch[None], state)  # one step (T=1)
                 log_probs = log_probs[0]
             else:
                 log_probs, _ = model(batch)
-            chosen = evaluation_actions(log_probs, greedy, generator).tolist()
+            log_probs = log_probs.cpu()  # (a network on a GPU: the batched backend's)
+            if greedy:
+                chosen = log_probs.argmax(1).tolist()
+            else:
+                chosen = torch.multinomial(log_probs.exp(), 1, generator=generator)
+                chosen = chosen.squeeze(1).tolist()
             still_running = []
             for i, action in zip(running, chosen, strict=True):
                 observations[i], _, terminated, truncated, info = envs[i].step(action)
@@ -76,17 +82,6 @@ def play_episodes(
                 state = tuple(s[[running.index(i) for i in still_running]] for s in state)
             running = still_running
     return scores
-
-
-def evaluation_actions(
-    log_probs: torch.Tensor, greedy: bool, generator: torch.Generator | None
-) -> torch.Tensor:
-    """The evaluation's actions for log-probs (E, A) of one run's E episodes: sampled from pi
-    with the evaluation's generator (the thesis's protocol), or argmax pi (--eval-greedy, the
-    first of tied actions). Both backends' evaluations choose through this."""
-    if greedy:
-        return log_probs.argmax(1)
-    return torch.multinomial(log_probs.exp(), 1, generator=generator)[:, 0]
 
 
 def make_eval_envs(
