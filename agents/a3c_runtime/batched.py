@@ -32,7 +32,7 @@ from torch.func import functional_call, grad, stack_module_state, vmap
 
 from catch_env.torch_catch import NumpyStateView, TorchCatchVectorEnv
 
-from .checkpoints import Checkpoint, save_checkpoint
+from .checkpoints import Checkpoint, restore, save_checkpoint
 from .evaluation import evaluate_network, make_eval_envs
 from .hogwild import (
     RMSprop,
@@ -108,10 +108,17 @@ class BatchedA3C:
             runs = [runs[0], dataclasses.replace(runs[0], folder=None)]
         self.runs, self.args = runs, [run.args for run in runs]
         self.total, n = self.args[0].total_timesteps, len(runs)
-        models, seeds = [], [process_seed(args.seed, 0) for args in self.args]  # the workers'
-        for args in self.args:
-            seed_everything(args.seed)  # as a3c_runtime.train builds the run's network
-            models.append(self.agent.build_network(3, args))
+        a, models, square_avgs = self.args[0], [], []
+        for run in runs:  # each run's network and statistics, as a3c_runtime.train makes them
+            seed_everything(run.args.seed)
+            models.append(self.agent.build_network(3, run.args))
+            optimizer = RMSprop(list(models[-1].parameters()), a.rms_decay, a.optim_eps,
+                                a.rms_init, shared=False)  # fmt: skip
+            if run.checkpoint is not None:  # (the flags its network depends on checked)
+                state = SimpleNamespace(model=models[-1], optimizer=optimizer, base_step=[0])
+                restore(state, run.checkpoint, run.args, run.checkpoint.path, self.agent)
+            square_avgs.append(optimizer.square_avg)
+        seeds = [process_seed(args.seed, 0) for args in self.args]  # the workers'
         self.rngs = [np.random.default_rng(seed) for seed in seeds]
         self.cpu_model = models[0]  # the checkpoints' network
         self.base = copy.deepcopy(models[0]).to(self.device)
@@ -121,8 +128,9 @@ class BatchedA3C:
         self.params = [params[k].detach().to(self.device) for k in self.names]
         self.buffers = {k: b.to(self.device) for k, b in buffers.items()}  # (LWS's centroids)
         self.saved_names = list(models[0].state_dict())  # what a checkpoint's model holds
-        a = self.args[0]
         self.optimizer = RMSprop(self.params, a.rms_decay, a.optim_eps, a.rms_init, shared=False)
+        for j, stacked in enumerate(self.optimizer.square_avg):
+            stacked.copy_(torch.stack([run_avgs[j] for run_avgs in square_avgs]))
         self.envs = TorchCatchVectorEnv(n, self.device)
         self.envs.reset(seed=seeds)
         # LSTM: the state each run's worker carries across rollouts, (N, 1, cells) each
@@ -143,23 +151,16 @@ class BatchedA3C:
         self.stats = torch.zeros(shape, dtype=torch.float64, device=self.device)
 
     def restore(self, checkpoints: list[Checkpoint]) -> None:
-        """Every run from its checkpoint (all at one step): theta, the RMSprop statistics, the
-        worker's generator, env and frames (and an LSTM's carried state)."""
+        """Every run's worker from its checkpoint (all at one step; theta and the statistics
+        are restored by the runtime's `restore` in __init__): its generator, env (and LSTM
+        state), as a worker restores its own."""
         (self.step_count,) = {c.global_step for c in checkpoints}
-        with torch.no_grad():
-            for i, checkpoint in enumerate(checkpoints):
-                for j, name in enumerate(self.names):
-                    self.params[j][i] = checkpoint.model[name]
-                    self.optimizer.square_avg[j][i] = checkpoint.optimizer["square_avg"][j]
-                for name, stacked in self.buffers.items():
-                    if name in checkpoint.model:
-                        stacked[i] = checkpoint.model[name]
-                # the worker's generator, env (and LSTM state) as a worker restores its own
-                fresh = (self.rngs[i], NumpyStateView(self.envs, i), None, self.state)
-                parts = restored_state(checkpoint.workers[0], fresh[: 3 + bool(self.state)])
-                for stacked, saved in zip(self.state, parts[3] if self.state else (), strict=True):
-                    stacked[i] = saved
-                self.wall_offsets[i] = checkpoint.wall_time
+        for i, checkpoint in enumerate(checkpoints):
+            fresh = (self.rngs[i], NumpyStateView(self.envs, i), None, self.state)
+            parts = restored_state(checkpoint.workers[0], fresh[: 3 + bool(self.state)])
+            for stacked, saved in zip(self.state, parts[3] if self.state else (), strict=True):
+                stacked[i] = saved
+            self.wall_offsets[i] = checkpoint.wall_time
 
     def set_progress(self) -> None:
         """GLPQ's tau schedule at this step, as its worker and evaluator set it, and the 1/tau
