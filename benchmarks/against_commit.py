@@ -1,10 +1,11 @@
-"""One benchmark figure of this working tree against a commit's, in the same run: each command
-runs in a git worktree of the commit and in this tree by turns, --rounds times, so that a shared
-machine's drifts fall on both alike; the figure is the number the command prints that --pattern
-captures (its first group, commas allowed).
+r"""Benchmark figures of this working tree against a commit's, in the same run: each command runs
+in a git worktree of the commit and in this tree by turns, round after round (--rounds), so that
+a shared machine's drifts fall on both alike; a measure's figure is the number its --pattern
+captures (the first group, commas allowed) in its command's output. Measures that share a
+command share its runs.
 
-    python benchmarks/against_commit.py BASE --rounds 3 --out FILE \\
-        --measure "process K=1" "^a3c_ff: ([\\d,.]+) steps/s" \\
+    python benchmarks/against_commit.py BASE --rounds 3 --out FILE \
+        --measure "process K=1" "^a3c_ff: ([\d,.]+) steps/s" \
             "python benchmarks/a3c_throughput.py --seconds 15 --no-baseline" [--measure ...]
 
 Each command runs with its tree first on PYTHONPATH (the tree's catch_env and agents packages
@@ -26,15 +27,22 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def figure(command: str, pattern: str, tree: Path) -> float:
-    """The number `pattern` captures in the command's output, run in `tree`."""
+def output(command: str, tree: Path) -> subprocess.CompletedProcess:
+    """The command's run in `tree`, its tree's packages first on the path."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree), str(tree / "agents")])}
-    result = subprocess.run(command, shell=True, cwd=tree, env=env, capture_output=True,
-                            text=True)  # fmt: skip
+    return subprocess.run(command, shell=True, cwd=tree, env=env, capture_output=True, text=True)
+
+
+def shown(x: float) -> str:
+    return f"{x:,.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
+def figure(result: subprocess.CompletedProcess, pattern: str, tree: Path) -> float:
+    """The number `pattern` captures in a command's output."""
     for line in result.stdout.splitlines():
         if match := re.search(pattern, line):
             return float(match.group(1).replace(",", ""))
-    raise SystemExit(f"error: {command!r} in {tree} printed no line matching {pattern!r} "
+    raise SystemExit(f"error: {result.args!r} in {tree} printed no line matching {pattern!r} "
                      f"(exit {result.returncode}): {result.stderr.strip()[-500:]}")  # fmt: skip
 
 
@@ -63,15 +71,20 @@ def main() -> int:
         try:
             report(f"# this tree ({head}{' + changes' if dirty else ''}) against {args.base}, "
                    f"{args.rounds} rounds by turns")  # fmt: skip
-            for name, pattern, command in args.measure:
-                figures: dict[str, list[float]] = {"base": [], "this": []}
-                for _ in range(args.rounds):
-                    figures["base"].append(figure(command, pattern, base))
-                    figures["this"].append(figure(command, pattern, ROOT))
-                shown = {k: ", ".join(f"{x:,.0f}" for x in v) for k, v in figures.items()}
-                mean = {k: statistics.mean(v) for k, v in figures.items()}
-                report(f"{name}: {args.base} {shown['base']} (mean {mean['base']:,.0f}); this "
-                       f"tree {shown['this']} (mean {mean['this']:,.0f}); ratio "
+            figures = {name: {"base": [], "this": []} for name, _, _ in args.measure}
+            commands = list(dict.fromkeys(command for _, _, command in args.measure))
+            for _ in range(args.rounds):
+                for command in commands:
+                    for label, tree in (("base", base), ("this", ROOT)):
+                        result = output(command, tree)
+                        for name, pattern, measured in args.measure:
+                            if measured == command:
+                                figures[name][label].append(figure(result, pattern, tree))
+            for name, _, _ in args.measure:
+                rounds = {k: ", ".join(map(shown, v)) for k, v in figures[name].items()}
+                mean = {k: statistics.mean(v) for k, v in figures[name].items()}
+                report(f"{name}: {args.base} {rounds['base']} (mean {shown(mean['base'])}); this "
+                       f"tree {rounds['this']} (mean {shown(mean['this'])}); ratio "
                        f"{mean['this'] / mean['base']:.3f}")  # fmt: skip
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=ROOT)
