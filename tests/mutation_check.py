@@ -397,6 +397,11 @@ MUTANTS = [
            "kernels part from a batch of two's in the last bits", BATCHED_BACKEND,
            "        if len(runs) == 1:\n", "        if len(runs) == 0:\n",
            ("tests/test_batched_invariance.py", BATCH_T)),
+    Mutant("checkpoint-catch-values-unchecked", "a checkpoint's Catch games pass with any value "
+           "(a ball off the board reaches the env)", ("agents/a3c_runtime/catch_state.py",),
+           "outside = (state[name] < low) | (state[name] > high)",
+           "outside = (state[name] < low) & (state[name] > high)",
+           ("tests/test_checkpoint_env_state.py",)),
     # --- the sweep: run i's seed and sampled flags -----------------------------------------------
     Mutant("sweep-restarts-cut-off-run", "a sweep started again runs a cut-off run from its "
            "start, not on from its checkpoint", SWEEP,

@@ -124,23 +124,24 @@ def clip_stacked(grads: list[torch.Tensor], mode: str, bound: float) -> torch.Te
     run as a stack of one (clip_gradients); the batched backend, its N runs."""
     norms = torch.stack([g.reshape(len(g), -1).norm(dim=1) for g in grads], dim=1)  # (N, tensors)
     global_norm = torch.linalg.vector_norm(norms, dim=1)
+    if mode == "value":
+        torch._foreach_clamp_min_(grads, -bound)
+        torch._foreach_clamp_max_(grads, bound)
+    if mode not in ("norm", "global-norm"):
+        return global_norm
+    # on the CPU, nothing more where no bound is exceeded (most updates); on a GPU that check
+    # would wait for the device, and scaling by 1 is the same
+    exceeded = (norms if mode == "norm" else global_norm) > bound
+    if not grads[0].is_cuda and not bool(exceeded.any()):
+        return global_norm
     if mode == "norm":  # where any tensor of a run exceeds the bound, each by its own norm
         over = (norms > bound).any(dim=1, keepdim=True)
         factors = torch.where(over, (bound / (norms + 1e-6)).clamp(max=1.0), 1.0)
-    elif mode == "global-norm":
+    else:
         scale = (bound / (global_norm + 1e-6)).clamp(max=1.0)
         factors = torch.where(global_norm > bound, scale, 1.0)[:, None].expand_as(norms)
-    elif mode == "value":
-        torch._foreach_clamp_min_(grads, -bound)
-        torch._foreach_clamp_max_(grads, bound)
-        return global_norm
-    else:
-        return global_norm
-    # on the CPU, no pass over the gradients where no bound is exceeded (most updates); on a
-    # GPU that check would wait for the device, and scaling by 1 is the same
-    if grads[0].is_cuda or bool((factors < 1.0).any()):
-        for j, g in enumerate(grads):
-            g.mul_(factors[:, j].view(-1, *[1] * (g.dim() - 1)))
+    for j, g in enumerate(grads):
+        g.mul_(factors[:, j].view(-1, *[1] * (g.dim() - 1)))
     return global_norm
 
 
