@@ -307,6 +307,10 @@ def test_batched_profile_refuses_bad_input_in_one_line(flags, says, monkeypatch,
     assert "Traceback" not in result.stderr
 
 
+IN_GIT = (ROOT / ".git").exists()  # (not in the mutation check's copy of the tree)
+
+
+@pytest.mark.skipif(not IN_GIT, reason="needs the repository's git checkout")
 def test_against_commit_reports_both_trees_figures_and_their_ratio(tmp_path, monkeypatch, capsys):
     """Both trees run the command by turns (here one that prints the number of files in the
     tree's benchmarks/), and the report gives each tree's figure per round, their means and the
@@ -326,6 +330,7 @@ def test_against_commit_reports_both_trees_figures_and_their_ratio(tmp_path, mon
     assert str(tmp_path) not in worktrees and "/base " not in worktrees
 
 
+@pytest.mark.skipif(not IN_GIT, reason="needs the repository's git checkout")
 def test_against_commit_names_a_command_that_prints_no_figure(monkeypatch, capsys):
     result = run("against_commit.py", "HEAD", "--rounds", "1", "--measure", "x", r"^never (\d+)",
                  "true", monkeypatch=monkeypatch, capsys=capsys)  # fmt: skip
