@@ -18,8 +18,8 @@ stopped one, not the same run.
 A worker's state is kept as data, never pickled (a checkpoint stores it as flat tensors and its
 declared document, a3c_runtime.checkpoint_file): its generator as its `bit_generator.state`,
 arrays as tensors, and its envs as their own `get_state()` (Catch's vector env and its frame
-stacks). What has no such form (ale-py's C++ vector env) is left out,
-and a resumed run makes that part afresh (its envs start new games)."""
+stacks). What has no such form (ale-py's C++ vector env) is left out, and a resumed run makes
+that part afresh (its envs start new games)."""
 
 from __future__ import annotations
 
@@ -123,8 +123,8 @@ class MarkClock:
         self.marks = marks
         self.eval_interval = self.checkpoint_interval = self.total = NEVER
         if args is not None:
-            self.eval_interval, self.checkpoint_interval = (args.eval_interval,
-                                                            args.checkpoint_interval)  # fmt: skip
+            self.eval_interval = args.eval_interval
+            self.checkpoint_interval = args.checkpoint_interval
             self.total = args.total_timesteps
             self.marks[0] = next_mark(start_step, self.eval_interval)
             self.marks[1] = next_mark(start_step, self.checkpoint_interval)
