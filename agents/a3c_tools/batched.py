@@ -105,7 +105,7 @@ def episode_row(checkpoint: Checkpoint | None) -> int:
     workers for a while counts their steps too."""
     if checkpoint is None:
         return BALL_START_ROW
-    env_state = arrays_of(checkpoint.workers[0][1]["env"])  # as BatchedA3C.restore reads it
+    env_state = arrays_of(checkpoint.workers[0][1]["env"])  # (restored_state reads it so)
     return int(np.asarray(env_state["env"]["ball_row"])[0])
 
 
