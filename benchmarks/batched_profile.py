@@ -28,9 +28,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
 
 from a3c_runtime import UsageError  # noqa: E402
+from a3c_runtime.batchable import BATCHED_SCRIPTS, resolve_run_args  # noqa: E402
 from a3c_runtime.batched import BatchedA3C, BatchedRun, set_up_device  # noqa: E402
 from a3c_tools import load_script  # noqa: E402
-from a3c_tools.batched import BATCHED_SCRIPTS, planned_args, resolve_run_args  # noqa: E402
+from a3c_tools.batched import planned_args  # noqa: E402
 
 
 def sync(device: str) -> None:

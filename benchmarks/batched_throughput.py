@@ -3,12 +3,16 @@
 agents/a3c_ff.py side by side, one core each).
 
     python benchmarks/batched_throughput.py [--device cpu|cuda] [--runs 50 64 256 1024]
-        [--seconds 20] [--process-runs W] [--process-seconds 40] [--t-max 20] [--out FILE]
+        [--conv-form auto grouped matmul] [--seconds 20] [--process-runs W]
+        [--process-seconds 40] [--t-max 20] [--out FILE]
 
 For each N of --runs it builds a batch of N runs (run i: seed 1 + 1000 i, a learning rate
 log-uniform in [1e-4, 1e-2], the script's other defaults), trains it for --seconds after two
-warm-up updates and reports run-steps/s (N x env steps per second; evaluations apart), then
-times one evaluation of the thesis protocol (N x 50 episodes). From these it projects a
+warm-up updates and reports run-steps/s (N x env steps per second; evaluations apart) and the
+ms of an update, once for each --conv-form (how the stacked convolutions are computed,
+a3c_runtime.batched.CONV_FORMS; several: each N measured with each, in turns), then
+times one evaluation of the thesis protocol (N x 50 episodes; the runs' evaluations are
+sequential, so it times EVALUATED of them and scales to N). From these it projects a
 thesis-scale line: 50 runs of 1M steps with an evaluation every 50,000 steps, run as one batch.
 
 The process backend: --process-runs W runs of agents/a3c_ff.py --num-workers 1 side by side, each
@@ -40,10 +44,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
 
 from a3c_runtime import resolve_defaults  # noqa: E402
-from a3c_runtime.batched import BatchedA3C, BatchedRun, set_up_device  # noqa: E402
+from a3c_runtime.batched import CONV_FORMS, BatchedA3C, BatchedRun, set_up_device  # noqa: E402
 from a3c_tools import load_script  # noqa: E402
 
 THESIS_LINE = {"runs": 50, "steps": 1_000_000, "eval_interval": 50_000}
+EVALUATED = 8  # runs whose evaluation is timed, the rest projected from theirs
 
 
 def load() -> str:
@@ -55,37 +60,44 @@ def sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def batch_of(module, n: int, device: str, t_max: int) -> BatchedA3C:
+def batch_of(module, n: int, device: str, t_max: int, conv_form: str = "auto") -> BatchedA3C:
     runs = []
     for i in range(n):
         lr = math.exp(math.log(1e-4) + (i + 0.5) / n * (math.log(1e-2) - math.log(1e-4)))
         args = module.Args(num_workers=1, seed=1 + 1000 * i, learning_rate=lr, t_max=t_max,
                            total_timesteps=10**9, precision="fp32")  # fmt: skip
         runs.append(BatchedRun(resolve_defaults(args)))
-    return BatchedA3C(module, runs, device)
+    return BatchedA3C(module, runs, device, conv_form)
 
 
-def measure_batch(module, n: int, device: str, seconds: float, t_max: int) -> dict:
-    """run-steps/s of a batch of n runs over `seconds`, and one evaluation's seconds."""
+def measure_batch(
+    module, n: int, device: str, seconds: float, t_max: int, conv_form: str = "auto"
+) -> dict:
+    """run-steps/s of a batch of n runs over `seconds`, the ms of an update, and one
+    evaluation's seconds."""
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
-    batch = batch_of(module, n, device, t_max)
+    batch = batch_of(module, n, device, t_max, conv_form)
     for _ in range(2):  # warm-up: the first vmap traces, cuDNN picks its algorithms
         batch.update()
     sync(device)
-    start, steps = time.time(), 0
+    start, steps, updates = time.time(), 0, 0
     while time.time() - start < seconds:
         steps += batch.update()
+        updates += 1
     sync(device)
     elapsed = time.time() - start
-    start = time.time()
-    for i in range(n):
+    # a batch's evaluation is each run's in turn (the runtime's evaluate_network): timed on at
+    # most EVALUATED runs and scaled to N, where N of them would take minutes
+    start, evaluated = time.time(), min(n, EVALUATED)
+    for i in range(evaluated):
         batch.evaluate(i)
     sync(device)
-    evaluation = time.time() - start
+    evaluation = (time.time() - start) * n / evaluated
     memory = torch.cuda.max_memory_allocated() / 2**30 if device == "cuda" else float("nan")
     return {"run_steps_s": n * steps / elapsed, "steps_s": steps / elapsed,
-            "eval_s": evaluation, "memory_gib": memory}  # fmt: skip
+            "update_ms": 1000 * elapsed / updates, "eval_s": evaluation,
+            "memory_gib": memory, "conv_form": batch.conv_form}  # fmt: skip
 
 
 def measure_processes(count: int, seconds: float) -> float:
@@ -149,6 +161,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--runs", type=int, nargs="+", default=[50, 64, 256, 1024])
+    parser.add_argument("--conv-form", nargs="+", choices=CONV_FORMS, default=["auto"])
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--process-runs", type=int, default=None)
     parser.add_argument("--process-seconds", type=float, default=40.0)
@@ -177,13 +190,15 @@ def main() -> int:
         processes = measure_processes(args.process_runs, args.process_seconds)
         report(f"process backend: {args.process_runs} one-worker runs side by side: "
                f"{processes:,.0f} run-steps/s ({load()})")  # fmt: skip
-    for n in args.runs:
-        result = measure_batch(module, n, args.device, args.seconds, args.t_max)
+    for n, conv_form in ((n, form) for n in args.runs for form in args.conv_form):
+        result = measure_batch(module, n, args.device, args.seconds, args.t_max, conv_form)
         ratio = (
             f" = {result['run_steps_s'] / processes:.2f}x the process backend" if processes else ""
         )
-        report(f"batched N={n}: {result['run_steps_s']:,.0f} run-steps/s{ratio}; "
-               f"one evaluation (N x 50 episodes) {result['eval_s']:.2f} s; peak device memory "
+        report(f"batched N={n} ({result['conv_form']} convolutions): "
+               f"{result['run_steps_s']:,.0f} run-steps/s{ratio}, "
+               f"{result['update_ms']:.1f} ms an update; one evaluation (N x 50 episodes) "
+               f"{result['eval_s']:.2f} s; peak device memory "
                f"{result['memory_gib']:.1f} GiB; a thesis-scale line (50 runs x 1M steps) at "
                f"this N's speed: {thesis_line_minutes(result):.1f} min ({load()})")  # fmt: skip
     if args.out:

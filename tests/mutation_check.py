@@ -69,6 +69,8 @@ EVALUATION = ("agents/a3c_runtime/evaluation.py",)
 SNAPSHOTS = ("agents/a3c_runtime/snapshots.py",)
 BATCHED_BACKEND = ("agents/a3c_runtime/batched.py",)
 BATCHED_SWEEP = ("agents/a3c_tools/batched.py",)
+BATCHABLE = ("agents/a3c_runtime/batchable.py",)
+TOOLS_INIT = ("agents/a3c_tools/__init__.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
 ATARI_FIGURES = ("agents/a3c_tools/atari_figures.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
@@ -373,11 +375,11 @@ MUTANTS = [
            HOGWILD, "torch._foreach_mul_(self.square_avg, self.decay)",
            "torch._foreach_mul_(self.square_avg, 1.0)", (BATCH_T, OPTIM)),
     Mutant("batched-parse-names-the-rule", "a run flag the script refuses is named by tyro's "
-           "ASCII rule, not its message", BATCHED_SWEEP,
-           'body = [line for line in lines if line.strip("─-╭╮╰╯│ ")][1:]',
-           'body = [line for line in lines if line.strip("─╭╮╰╯│ ")][1:]', (BATCH_T,)),
+           "ASCII rule, not its message", TOOLS_INIT,
+           """(line and set(line) <= set("-─━╰╯ "))]""",
+           """(line and set(line) <= set("─━╰╯ "))]""", (BATCH_T,)),
     Mutant("batched-k-envs-as-one", "a run with K = 4 envs per worker is batched, silently as "
-           "K = 1", BATCHED_SWEEP, '"envs_per_worker": ("1", lambda v: v == 1),',
+           "K = 1", BATCHABLE, '"envs_per_worker": ("1", lambda v: v == 1),',
            '"envs_per_worker": ("1", lambda v: v >= 1),', (BATCH_T,)),
     Mutant("batched-one-wall-clock", "every run resumed in a batch goes on from run 0's "
            "checkpoint wall time", BATCHED_BACKEND,

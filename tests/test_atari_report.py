@@ -8,6 +8,7 @@ import csv
 import numpy as np
 import pytest
 from a3c_tools import atari_report as report
+from a3c_tools import read_toml
 from conftest import ROOT, run_main
 from scipy import stats
 
@@ -125,8 +126,7 @@ def test_the_report_on_the_committed_runs_gives_their_scores(tmp_path):
     done = run_main(report.main, ["--figure", str(figure)])
     assert done.returncode == 0, done.stderr
     assert figure.stat().st_size > 10_000
-    with open(report.CONFIG, "rb") as f:
-        config = report.tomllib.load(f)
+    config = read_toml(report.CONFIG)
     line = config["line"][0]
     normalised = []
     for game, spec in line["games"].items():

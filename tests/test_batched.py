@@ -24,6 +24,7 @@ from a3c_runtime import (
     seed_everything,
 )
 from a3c_runtime import batched as runtime_batched
+from a3c_runtime.batchable import resolve_run_args
 from a3c_runtime.batched import BatchedA3C, BatchedRun, train_batched
 from a3c_runtime.snapshots import saved_state
 from a3c_tools import batched, sweep
@@ -213,34 +214,48 @@ BATCH_FLAGS = [
 
 
 @pytest.mark.parametrize(
-    ("name", "flags", "updates"),
+    ("name", "flags", "updates", "conv_form"),
     [
         # FF at its defaults, 50 updates; the other networks the backend batches (GLPQ with
         # its tau schedule and 1/tau loss correction) at theirs, 10 updates (they share FF's
         # worker loop, so 50 of theirs would add CI time and no code); FF's other flags in the
         # slow tier, 10 updates
-        ("a3c_ff", BATCH_FLAGS[0], UPDATES),
-        *((name, BATCH_FLAGS[0], 10) for name in OTHER_NETWORKS),
-        ("a3c_lws", {**BATCH_FLAGS[0], **LWS_AS_RUN}, 10),
-        ("a3c_lws", {**BATCH_FLAGS[0], "lws_trainable": False}, 10),  # centroids U[0,1] per seed
+        ("a3c_ff", BATCH_FLAGS[0], UPDATES, "grouped"),
+        *((name, BATCH_FLAGS[0], 10, "grouped") for name in OTHER_NETWORKS),
+        ("a3c_lws", {**BATCH_FLAGS[0], **LWS_AS_RUN}, 10, "grouped"),
+        ("a3c_lws", {**BATCH_FLAGS[0], "lws_trainable": False}, 10, "grouped"),  # U[0,1] per seed
         # LSTM with rollouts of 7, 7 and 1 steps: a one-step learning pass, and its state carried
         # over two rollouts of an episode and zeroed at its end
-        ("a3c_lstm", {"t_max": 7}, 9),
-        *(pytest.param("a3c_ff", flags, 10, marks=pytest.mark.slow) for flags in BATCH_FLAGS[1:]),
+        ("a3c_lstm", {"t_max": 7}, 9, "grouped"),
+        *(
+            pytest.param("a3c_ff", flags, 10, "grouped", marks=pytest.mark.slow)
+            for flags in BATCH_FLAGS[1:]
+        ),  # fmt: skip
+        # the convolutions as matmuls (a GPU's default): FF, LSTM and LWS's locally shared layers
+        # here, the other networks (FF's convolutions in other heads) in the slow tier
+        ("a3c_ff", BATCH_FLAGS[0], UPDATES, "matmul"),
+        ("a3c_lstm", {"t_max": 7}, 9, "matmul"),
+        ("a3c_lws", {**BATCH_FLAGS[0], **LWS_AS_RUN}, 10, "matmul"),
+        *(
+            pytest.param(name, BATCH_FLAGS[0], 10, "matmul", marks=pytest.mark.slow)
+            for name in OTHER_NETWORKS
+        ),  # fmt: skip
     ],
 )
 def test_each_update_of_run_i_is_the_scripts_update_from_its_state(
-    name, flags, updates, monkeypatch
+    name, flags, updates, conv_form, monkeypatch
 ):
     """Two runs with their own seeds and learning rates as one batch, 10 or 50 updates: before
     each one, run i's state is handed to the script's own loop as its checkpoint would hand it
     (theta, RMSprop statistics, step, the worker's generator, env and frames); the script's
     update takes the batch's actions, and ends with its theta and statistics to float
-    tolerance (only the order of floating-point sums differs)."""
+    tolerance (only the order of floating-point sums differs), its convolutions computed either
+    way (conv_form)."""
     module = load_script(name)
     steps = steps_of(updates, flags["t_max"])
     runs_args = run_args(module, flags, steps, RUN_FLAGS)
-    batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cpu")
+    batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cpu", conv_form)
+    assert batch.conv_form == conv_form
     shareds = [one_update_shared(module, args, monkeypatch) for args in runs_args]
     for _ in range(updates):
         expected = [script_update(module, shared, batch, i) for i, shared in enumerate(shareds)]
@@ -538,14 +553,17 @@ def test_each_runs_evaluation_is_the_runtimes_evaluation_of_its_network(name):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-@pytest.mark.parametrize(("name", "t_max"), [("a3c_ff", 5), ("a3c_lstm", 7)])
-def test_each_update_on_a_gpu_is_the_scripts_update_from_its_state(monkeypatch, name, t_max):
+@pytest.mark.parametrize("conv_form", ["matmul", "grouped"])
+@pytest.mark.parametrize(("name", "t_max"), [("a3c_ff", 5), ("a3c_lstm", 7), ("a3c_lws", 5)])
+def test_each_update_on_a_gpu_is_the_scripts_update_from_its_state(
+    monkeypatch, name, t_max, conv_form
+):
     """The per-update test on a CUDA device (the lent GPU machine's check; CI has none): the
-    batch on the GPU takes the script's actions, its theta close to the script's CPU update
-    (LSTM: and its carried state)."""
+    batch on the GPU, its convolutions either way, takes the script's actions, its theta close
+    to the script's CPU update (LSTM: and its carried state)."""
     module = load_script(name)
     runs_args = run_args(module, {"t_max": t_max}, steps_of(20, t_max), RUN_FLAGS)
-    batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cuda")
+    batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cuda", conv_form)
     torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
     shareds = [one_update_shared(module, args, monkeypatch) for args in runs_args]
     on_cpu = SimpleNamespace(
@@ -803,7 +821,7 @@ def test_runs_at_one_step_but_other_steps_of_their_episodes_are_batched_apart(tm
     runs = []
     for run, updates in zip(planned, (4, 2), strict=True):
         run_dir = out / "runs" / run.run_id
-        args = batched.resolve_run_args(batched.planned_args(module, run.command(FF, run_dir)[1:]))
+        args = resolve_run_args(batched.planned_args(module, run.command(FF, run_dir)[1:]))
         train_batched(module, [BatchedRun(args)], should_stop=stop_after(updates))
         runs.append(args)
     path = out / "runs" / "run-0001" / "checkpoint.pt"

@@ -19,6 +19,11 @@ from a3c_tools import thesis_claims as claims
 from conftest import ROOT, run_main
 from scipy import stats
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
 FF = "agents/a3c_ff.py"
 LPQ = "agents/a3c_lpq.py"
 COMMITTED = ("results/future_work_catch/lpq_f32", "results/future_work_catch/lpq_growth_f32")
@@ -240,7 +245,7 @@ def test_fewer_than_three_pairs_give_no_interval_and_no_verdict_and_exit_1(tmp_p
 
 def test_the_committed_lpq_growth_comparison_gives_the_claims_pages_numbers(tmp_path):
     with open(claims.CLAIMS, "rb") as f:
-        data = claims.tomllib.load(f)
+        data = tomllib.load(f)
     [claim] = [claim for section in data["section"] for claim in section["claim"]
                if claim.get("line") == COMMITTED[1]]  # fmt: skip
     _, effect, verdict = claims.evidence(claim)

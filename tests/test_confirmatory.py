@@ -7,11 +7,16 @@ import pytest
 from a3c_tools import campaign, confirmatory, paired
 from conftest import ROOT, run_main
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
 PLAN = ROOT / "results" / "confirmatory" / "plan.toml"
 
 
 def plan() -> dict:
-    return confirmatory.tomllib.loads(PLAN.read_text())
+    return tomllib.loads(PLAN.read_text())
 
 
 def test_the_committed_plan_passes_its_check():
@@ -90,7 +95,7 @@ def test_the_check_fails_on_a_changed_number_or_a_used_seed(tmp_path):
     done = run_main(confirmatory.main, [str(changed), "--check"])
     assert done.returncode == 1 and "run seeds already used by committed runs: [1, " in done.stdout
     # the study's own runs (seeds 7500, ...: in its output folders) are not "used before"
-    own = confirmatory.output_folders(confirmatory.tomllib.loads(text))
+    own = confirmatory.output_folders(tomllib.loads(text))
     assert 1 in confirmatory.committed_seeds(own=own)
     assert 7500 not in confirmatory.committed_seeds(own=own)
     old = 'test = { baseline = "results/confirmatory/catch/lpq_low_lr"'

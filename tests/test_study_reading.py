@@ -10,7 +10,7 @@ import re
 
 import numpy as np
 import pytest
-from a3c_tools import confirmatory, paired, study_reading, thesis_claims
+from a3c_tools import confirmatory, paired, read_toml, study_reading, thesis_claims
 from conftest import ROOT, run_main
 from scipy import stats
 
@@ -20,7 +20,7 @@ LEVEL = 0.05 / 7  # the first study's Holm level
 
 
 def load(path):
-    return confirmatory.tomllib.loads(path.read_text())
+    return read_toml(path)
 
 
 def claim(study, claim_id):

@@ -17,10 +17,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
 
 def test_the_claims_page_holds_what_the_committed_results_give():
     with open(claims.CLAIMS, "rb") as f:
-        page = claims.render(claims.tomllib.load(f))
+        page = claims.render(tomllib.load(f))
     assert (ROOT / "docs" / "claims.md").read_text() == page, (
         "docs/claims.md is stale: python -m a3c_tools.thesis_claims -o docs/claims.md"
     )
@@ -98,7 +103,7 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
         cells = results[point.label.split(":")[0]]
         assert cells[-2].startswith(f"{point.effect:+.3f} [{point.low:+.3f}, {point.high:+.3f}]")
         assert cells[-1].startswith(f"**{point.verdict}** at ")  # and its budget
-    plan = claims.tomllib.loads(claims.CONFIRMATORY.read_text())
+    plan = tomllib.loads(claims.CONFIRMATORY.read_text())
     assert len(study) == (sum("atari" not in c["test"] for c in plan["claim"]) if looked else 0)
     assert all(point.colour == claims.COLOURS[point.verdict] for point in points)
     assert set(claims.COLOURS) == {"reproduced", "contradicted", "inconclusive", "no verdict"}
@@ -112,7 +117,7 @@ def test_the_forest_plot_draws_the_pages_rows_with_their_verdicts_colours():
 
 def test_every_claim_names_its_place_form_and_evidence_and_its_lines_exist_or_a_command():
     with open(claims.CLAIMS, "rb") as f:
-        data = claims.tomllib.load(f)
+        data = tomllib.load(f)
     rows = [claim for section in data["section"] for claim in section["claim"]]
     assert len(rows) >= 25
     for claim in rows:
@@ -286,7 +291,7 @@ def test_two_looks_give_a_row_with_no_effect_a_directional_verdict_rarely():
 @pytest.mark.parametrize(("folder", "n"), [("results/future_work_catch/lws_online", 17)])
 def test_the_committed_extended_row_shows_both_looks(folder, n):
     with open(claims.CLAIMS, "rb") as f:
-        data = claims.tomllib.load(f)
+        data = tomllib.load(f)
     [claim] = [
         c for section in data["section"] for c in section["claim"] if c.get("line") == folder
     ]
@@ -495,7 +500,7 @@ def test_power_grows_with_the_runs_and_agrees_with_the_normal_limit(effect, spre
 
 def load_claims():
     with open(claims.CLAIMS, "rb") as f:
-        return claims.tomllib.load(f)
+        return tomllib.load(f)
 
 
 def test_every_row_keeps_its_history_and_the_known_cases_say_theirs():
@@ -605,7 +610,7 @@ def test_rows_with_bf16_distances_are_struck_and_mixed_precision_rows_marked():
     marked = [row.split(" | ")[0][2:] for row in page.splitlines()
               if row.startswith("| ") and "*precision mixed*:" in row]  # fmt: skip
     assert set(marked) == mixed
-    plan = claims.tomllib.loads((ROOT / "results" / "campaign" / "plan.toml").read_text())
+    plan = tomllib.loads((ROOT / "results" / "campaign" / "plan.toml").read_text())
     reruns = {line["out"] for item in plan["item"] if item["id"].startswith(("a6", "f1"))
               for line in item["lines"]}  # fmt: skip
     for i in ("fw-lpq-growth", "fw-lpq-value", "fw-glpq-value", "fw-lpq-data", "fw-glpq-data"):
@@ -641,7 +646,7 @@ def test_the_page_opens_with_the_answer_then_the_confirmatory_study_then_the_row
     assert len(table) == len(data["conclusion"]) >= 7
     # a word or two, and where no confirmatory test answers it, saying so
     assert all(re.search(r"\| \*\*[a-z ]+\*\*( \([^|]+\))? \|", line) for line in table)
-    plan = claims.tomllib.loads(claims.CONFIRMATORY.read_text())
+    plan = tomllib.loads(claims.CONFIRMATORY.read_text())
     confirm = page.split("## The confirmatory study")[1].split("## ")[0]
     for claim in plan["claim"]:
         assert (

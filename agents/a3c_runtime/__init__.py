@@ -8,7 +8,8 @@ module per concern:
   RMSprop and Adam, action sampling, gradient clipping, the learning-rate schedule, the
   processes' seeds;
 - `batched`: N one-worker runs as one program on one device (the sweep's --backend batched),
-  through the same pieces;
+  through the same pieces; `batchable`, which runs it takes; `stacked_convs`, its convolutions
+  as one batched matmul;
 - `supervision`: starting and watching the processes, signals, how a run stops;
 - `evaluation`: the evaluator process, the thesis's evaluation protocol, --evaluate;
 - `checkpoints`: atomic save; the gate (a checkpoint read once, every field checked, handed on

@@ -32,8 +32,10 @@ from torch.func import functional_call, grad, stack_module_state, vmap
 
 from catch_env.torch_catch import NumpyStateView, TorchCatchVectorEnv
 
+from .batchable import batch_problem
 from .checkpoints import Checkpoint, restore, save_checkpoint
 from .evaluation import evaluate_network, make_eval_envs
+from .flags import UsageError
 from .hogwild import (
     RMSprop,
     WorkerStats,
@@ -46,9 +48,15 @@ from .hogwild import (
 from .run_folder import RunFolder
 from .run_log import RunLog, logged_steps
 from .snapshots import MarkClock, restored_state, saved_state
+from .stacked_convs import matmul_convs
 
 UNIFORM_BLOCK = 256  # action uniforms drawn per run at a time
 FILES_PER_RUN = 4  # held open by a batch: the folder's lock, evaluations.csv, events, stdout.log
+# how the stacked runs' convolutions are computed: "grouped", torch's convolution under vmap (a
+# grouped convolution, the runs its groups); "matmul", a3c_runtime.stacked_convs (one bmm for all
+# runs, where cuDNN runs a grouped convolution as a kernel per run); "auto": matmul on a GPU,
+# grouped on the CPU, where matmul measured no faster (results/batched_throughput)
+CONV_FORMS = ("auto", "grouped", "matmul")
 
 
 def network_frames(frames: torch.Tensor) -> torch.Tensor:
@@ -99,8 +107,18 @@ class BatchedRun:
 class BatchedA3C:
     """N one-worker runs of a script in lockstep (the module docstring)."""
 
-    def __init__(self, module: ModuleType, runs: list[BatchedRun], device: str | torch.device):
+    def __init__(
+        self,
+        module: ModuleType,
+        runs: list[BatchedRun],
+        device: str | torch.device,
+        conv_form: str = "auto",
+    ):
         self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
+        if conv_form not in CONV_FORMS:
+            raise ValueError(f"conv_form {conv_form!r}; valid: {', '.join(CONV_FORMS)}")
+        if (problem := batch_problem(self.agent.script, [run.args for run in runs])) is not None:
+            raise UsageError(problem)
         # a run alone computes beside a copy of itself whose results are dropped: vmap over one
         # run takes other kernels than over two or more, which part in the last bits
         self.shown = len(runs)
@@ -121,7 +139,15 @@ class BatchedA3C:
         seeds = [process_seed(args.seed, 0) for args in self.args]  # the workers'
         self.rngs = [np.random.default_rng(seed) for seed in seeds]
         self.cpu_model = models[0]  # the checkpoints' network
-        self.base = copy.deepcopy(models[0]).to(self.device)
+        self.base = copy.deepcopy(models[0]).to(self.device)  # called with each run's weights
+        self.conv_form = conv_form
+        if conv_form == "auto":
+            self.conv_form = "matmul" if self.device.type == "cuda" else "grouped"
+        if self.conv_form == "matmul":
+            matmul_convs(self.base)
+        # each run's --learning-rate, in float64 as annealed_lr computes with it
+        self.learning_rates = torch.tensor([args.learning_rate for args in self.args],
+                                           dtype=torch.float64, device=self.device)  # fmt: skip
         self.eval_model = copy.deepcopy(models[0]).to(self.device)  # a run's, for its evaluation
         params, buffers = stack_module_state(models)
         self.names = list(params)
@@ -243,8 +269,9 @@ class BatchedA3C:
         )
         self.last_actions = actions[:n].T  # (N, n), for the equivalence tests
         grad_norm = clip_stacked(grads, a.grad_clip_mode, a.grad_clip)
-        lrs = [annealed_lr(args, self.step_count) for args in self.args]
-        self.optimizer.step(grads, torch.tensor(lrs, dtype=torch.float32, device=self.device))
+        # annealed_lr of every run, on the device: its --learning-rate times the batch's factor
+        factor = annealed_lr(dataclasses.replace(a, learning_rate=1.0), self.step_count)
+        self.optimizer.step(grads, (self.learning_rates * factor).float())
         self.step_count += n
         self.add_stats(updates=1.0, policy_loss=policy_loss, value_loss=value_loss,
                        entropy=entropy, grad_norm=grad_norm)  # fmt: skip

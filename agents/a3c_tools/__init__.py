@@ -42,7 +42,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
-from typing import NoReturn
+from typing import Any, NoReturn
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository: the tools work on a clone
 AGENTS = ROOT / "agents"
@@ -93,6 +93,53 @@ def load_script(path: Path | str) -> ModuleType:
     sys.modules[path.stem] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
     return module
+
+
+def read_toml(path: Path) -> dict:
+    """A TOML file's table, or ValueError in one line naming the file: unreadable, not UTF-8,
+    not TOML, or nested past the parser's depth (RecursionError, not a data file)."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:  # TOMLDecodeError, UnicodeDecodeError
+        raise ValueError(f"{path}: {error}") from None
+    except RecursionError:
+        raise ValueError(f"{path}: TOML nested too deep to read") from None
+
+
+def tyro_message(text: str) -> str:
+    """The message of a tyro error on one line: the first section of its (last) box, drawn in
+    box-drawing characters on a terminal and in dashes elsewhere; else the last line that is not
+    a rule ('' when there is none)."""
+    lines = [line.strip().strip("│").strip() for line in text.splitlines()]
+    rules = [i for i, line in enumerate(lines)
+             if line.startswith("╭") or (line and set(line) <= set("-─━╰╯ "))]  # fmt: skip
+    tops = [i for i in rules if lines[i].startswith("╭")]
+    start = tops[-1] if tops else (rules[0] if rules else None)
+    ends = [i for i in rules if start is not None and i > start]
+    if ends and (message := " ".join(line for line in lines[start + 1 : ends[0]] if line)):
+        return message
+    said = [line for i, line in enumerate(lines) if line and i not in rules]
+    return said[-1] if said else ""
+
+
+def parsed_flags(args_type: type, flags: list[str], prog: str | None = None) -> Any:
+    """args_type parsed from flags by tyro, quietly, or ValueError with tyro's message on one
+    line (tyro_message)."""
+    import contextlib
+    import io
+
+    import tyro
+
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            return tyro.cli(args_type, args=flags, prog=prog)
+    except SystemExit:
+        raise ValueError(tyro_message(err.getvalue()) or "see --help") from None
 
 
 def run_main(main: Callable[[], int | None]) -> NoReturn:

@@ -40,13 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ATARI_REPORT_CONFIG, ROOT, run_main
+from a3c_tools import ATARI_REPORT_CONFIG, ROOT, read_toml, run_main
 from a3c_tools.paired import MIN_PAIRS
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 
 CONFIG = ATARI_REPORT_CONFIG
 MARK_SLACK = 1_000  # an evaluation this many steps past a mark or fewer is the mark's
@@ -120,10 +115,9 @@ def resolve(folder: str) -> Path:
 def load(config: Path) -> tuple[dict[str, tuple[float, float]], list[Line]]:
     """The games' (random, human) scores and the lines, each run scored and normalised."""
     try:
-        with open(config, "rb") as f:
-            data = tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        raise ReportError(f"{config}: {e}") from None
+        data = read_toml(config)
+    except ValueError as e:
+        raise ReportError(str(e)) from None
     try:
         games = {name: (float(g["random"]), float(g["human"])) for name, g in data["games"].items()}
         raw_lines = data["line"]

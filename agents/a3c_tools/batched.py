@@ -1,18 +1,14 @@
-"""The sweep's batched backend (`python -m a3c_tools.sweep ... --backend batched`): which runs
-it can batch (`batch_problem`, and `probe`: one update of the network under vmap), checked
-before anything runs, and `run_batched`, the sweep's runs as batches of the runtime's
-a3c_runtime.batched, each run's folder locked first with the runtime's own lock.
-
-What it batches: the scripts of BATCHED_SCRIPTS (FF, LSTM, LWS, SS, WW, LPQ, GLPQ) on Catch-v0
-with one worker and one env per run, RMSprop, fp32; runs that differ only in PER_RUN_FLAGS.
-Anything else is refused in one line before anything runs.
+"""The sweep's batched backend (`python -m a3c_tools.sweep ... --backend batched`): the sweep's
+runs checked before anything runs (the runtime's `batch_problem`, a3c_runtime.batchable, and
+`probe`: one update of the network under vmap), and `run_batched`, the sweep's runs as batches
+of the runtime's a3c_runtime.batched, each run's folder locked first with the runtime's own
+lock. Anything the batch cannot take is refused in one line before anything runs.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
-import os
 import shutil
 import sys
 from collections.abc import Callable
@@ -22,6 +18,7 @@ from typing import Any
 
 import numpy as np
 from a3c_runtime import Checkpoint, UsageError, WriteFailed, load_checkpoint
+from a3c_runtime.batchable import batch_problem, resolve_run_args
 from a3c_runtime.batched import (
     FILES_PER_RUN,
     BatchedA3C,
@@ -33,58 +30,6 @@ from a3c_runtime.run_folder import LOCK_FILE, RunFolder
 from a3c_runtime.snapshots import arrays_of
 
 from catch_env.catch import BALL_START_ROW
-
-# the scripts whose worker is a3c_ff.py's (GLPQ's adds its tau schedule and loss correction,
-# LSTM's its recurrent state) and whose network vmaps
-BATCHED_SCRIPTS = ("a3c_ff.py", "a3c_lstm.py", "a3c_lws.py", "a3c_ss.py", "a3c_ww.py",
-                   "a3c_lpq.py", "a3c_glpq.py")  # fmt: skip
-# flags that may differ between the runs of one batch; every other flag is the batch's
-PER_RUN_FLAGS = ("seed", "learning_rate", "weight_init", "bias_init", "run_dir", "exp_name",
-                 "eval_greedy")  # fmt: skip
-# flag -> (what the batched backend needs, the check): a run with another value is refused
-REQUIRED = {
-    "env": ("Catch-v0", lambda v: v == "Catch-v0"),
-    "num_workers": ("1", lambda v: v == 1),
-    "envs_per_worker": ("1", lambda v: v == 1),
-    "optimizer": ("rmsprop", lambda v: v == "rmsprop"),
-    "precision": (
-        "fp32 or auto (the batched runs compute in fp32)",
-        lambda v: v in ("fp32", "auto"),
-    ),
-    "track": ("off", lambda v: not v),
-    "capture_video": ("off", lambda v: not v),
-    "time_limit": ("none", lambda v: v is None),
-}
-# a script's own flags that the batch needs at one value: GLPQ's tau is the batch's module state
-# (its schedule follows the shared step), so a trainable tau, a parameter per run, is not batched
-SCRIPT_REQUIRED = {
-    "a3c_glpq.py": {
-        "temperature": ("fixed, cold, hot or searing", lambda v: v != "trainable"),
-    },
-}
-
-
-def batch_problem(script: str, runs_args: list[Any]) -> str | None:
-    """Why these runs (their parsed, unresolved Args) cannot be one batch, in one line, or None."""
-    name = os.path.basename(script)
-    if name not in BATCHED_SCRIPTS:
-        return (f"--backend batched runs {', '.join(BATCHED_SCRIPTS)}, not {name}; use "
-                "--backend local")  # fmt: skip
-    for args in runs_args:
-        for flag, (needed, ok) in {**REQUIRED, **SCRIPT_REQUIRED.get(name, {})}.items():
-            value = getattr(args, flag)
-            if not ok(value):
-                return (f"--backend batched cannot batch --{flag.replace('_', '-')} {value}: it "
-                        f"needs {needed}; use --backend local")  # fmt: skip
-    first = vars(runs_args[0])
-    for args in runs_args[1:]:
-        for flag, value in vars(args).items():
-            if flag not in PER_RUN_FLAGS and value != first[flag]:
-                return (f"--backend batched cannot batch runs that differ in "
-                        f"--{flag.replace('_', '-')} ({first[flag]} and {value}): only "
-                        f"{', '.join('--' + f.replace('_', '-') for f in PER_RUN_FLAGS)} may; "
-                        "use --backend local")  # fmt: skip
-    return None
 
 
 def resumable_checkpoint(agent: Any, run_dir: Path) -> Checkpoint | None:
@@ -123,24 +68,12 @@ def clear_run_folder(folder: RunFolder) -> None:
 
 def planned_args(module: ModuleType, flags: list[str]) -> Any:
     """A run's Args as its command line gives them (unresolved), or UsageError in one line."""
-    import contextlib
-    import io
+    from a3c_tools import parsed_flags
 
-    import tyro
-
-    err = io.StringIO()
     try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            return tyro.cli(module.Args, args=flags)
-    except SystemExit:
-        # tyro's box (drawn in ASCII when stderr is not a terminal): a title, the message over
-        # one or more lines, then the flag's help or a pointer to --help
-        lines = [line.strip("│ ") for line in err.getvalue().splitlines()]
-        body = [line for line in lines if line.strip("─-╭╮╰╯│ ")][1:]
-        ends = [i for i, line in enumerate(body) if line.startswith(("Argument help", "For full"))]
-        message = " ".join(body[: ends[0] if ends else len(body)])
-        raise UsageError(f"the run flags {' '.join(flags)!r} do not parse: "
-                         f"{message or 'see --help'}") from None  # fmt: skip
+        return parsed_flags(module.Args, flags)
+    except ValueError as e:
+        raise UsageError(f"the run flags {' '.join(flags)!r} do not parse: {e}") from None
 
 
 def check_batchable(script: str, runs: list[Any], out: Path) -> None:
@@ -170,14 +103,6 @@ def probe(module: ModuleType, runs_args: list[Any]) -> None:
         raise UsageError(f"--backend batched cannot batch {module.AGENT.script} with these "
                          f"flags: its network does not run under vmap ({detail}); use --backend "
                          "local") from None  # fmt: skip
-
-
-def resolve_run_args(args: Any) -> Any:
-    """A run's Args with the defaults filled in; the batched runs compute in fp32."""
-    from a3c_runtime import resolve_defaults
-
-    args.precision = "fp32"  # (auto: the batched backend's only precision)
-    return resolve_defaults(args)
 
 
 def run_batched(

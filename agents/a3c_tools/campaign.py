@@ -50,7 +50,7 @@ of its steps that its checkpoint holds where it has begun (here or on another ma
 Where the runs run is the command's, not the plan's (but for a sweep item's line that names
 `backend = "batched"`, a study of the backends themselves: it runs batched on --device, cpu by
 default): `--backend batched --device cuda` runs
-each Catch sweep of a script the batched backend takes (a3c_tools.batched.BATCHED_SCRIPTS) as
+each Catch sweep of a script the batched backend takes (a3c_runtime.batchable.BATCHED_SCRIPTS) as
 one batched program on the GPU, and every other sweep (Atari, the future-work scripts) on
 the process backend as before; SWEEPS.tsv names the device of a batched sweep. A line may so
 hold runs of both backends: run i is the same run on either (tests/test_batched.py), but for the
@@ -84,17 +84,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import ROOT, agent_script, results_folder, run_main
+from a3c_tools import ROOT, agent_script, read_toml, results_folder, run_main
 from a3c_tools import atari_figures as af
 from a3c_tools.figure_sweeps import DataError, Parser, execute
 from a3c_tools.paired import read_rows
 from a3c_tools.sweep import UsageError as SweepUsageError
 from a3c_tools.sweep import cpu_count, read_config, split_elsewhere
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 
 KINDS = ("extend", "repeat", "atari", "sweep")
 ALL = "**all**"  # the progress table's last row
@@ -292,11 +287,9 @@ def item_of(entry: dict, where: str) -> Item:
 
 def load_plan(plan: Path) -> list[Item]:
     try:
-        data = tomllib.loads(plan.read_text())
-    except (OSError, ValueError) as error:  # TOMLDecodeError, UnicodeDecodeError
-        raise DataError(f"{plan}: {error}") from None
-    except RecursionError:  # arrays or tables nested past the parser's depth: not a plan
-        raise DataError(f"{plan}: TOML nested too deep to read") from None
+        data = read_toml(plan)
+    except ValueError as error:
+        raise DataError(str(error)) from None
     items = [read_item(e, i, plan) for i, e in enumerate(data.get("item", []))]
     ids = [item.id for item in items]
     if len(set(ids)) != len(ids):
@@ -380,7 +373,7 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
 
 def repeat_report(items: list[Item], plan: Path) -> str:
     """The repeat items' verdicts: run 0 again against the committed run 0."""
-    data = tomllib.loads(plan.read_text())
+    data = read_toml(plan)
     report = []
     for entry in data.get("item", []):
         if entry["kind"] != "repeat":
@@ -530,7 +523,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def batchable(sweep: Sweep) -> bool:
     """Whether a sweep is a Catch sweep of a script that the batched backend takes."""
-    from a3c_tools.batched import BATCHED_SCRIPTS
+    from a3c_runtime.batchable import BATCHED_SCRIPTS
 
     command = sweep.command
     if command[:2] != ["-m", "a3c_tools.sweep"] or Path(command[2]).name not in BATCHED_SCRIPTS:

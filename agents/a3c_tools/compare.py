@@ -73,7 +73,6 @@ import argparse
 import contextlib
 import csv
 import importlib.util
-import io
 import math
 import reprlib
 import shlex
@@ -83,7 +82,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import AGENTS, load_script, paired, run_main, sweep
+from a3c_tools import AGENTS, figure_sweeps, load_script, paired, parsed_flags, run_main, sweep
 from a3c_tools.figure_sweeps import Parser, positive_int
 from a3c_tools.plot_sweep import smooth_curve
 from a3c_tools.thesis_figures import EVALUATIONS_PER_RUN, eval_interval, lr_range
@@ -185,35 +184,15 @@ def fixed_flags(flags: list[str], options: argparse.Namespace) -> list[str]:
 def parsed_args(script: Path, args_type: type, flags: list[str], which: str) -> object:
     """The line's Args as its script would parse and check them (tyro, then the runtime's
     checks), or UsageError with tyro's message or the check's."""
-    import tyro
     from a3c_runtime import UsageError as FlagError
     from a3c_runtime import resolve_defaults
 
     import catch_env  # noqa: F401  (registers Catch-v0, as the scripts do)
 
-    err = io.StringIO()
     try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            args = tyro.cli(args_type, args=flags, prog=script.name)
-        return resolve_defaults(args)
-    except SystemExit:
-        message = tyro_message(err.getvalue())
-        raise UsageError(f"{which}: {script.name} refuses them: {message}") from None
-    except FlagError as e:
+        return resolve_defaults(parsed_flags(args_type, flags, prog=script.name))
+    except (ValueError, FlagError) as e:
         raise UsageError(f"{which}: {script.name} refuses them: {e}") from None
-
-
-def tyro_message(text: str) -> str:
-    """The message of a tyro error: the first section of its box (drawn with rules of dashes or
-    box-drawing characters), on one line."""
-    lines = [line.strip().strip("│").strip() for line in text.splitlines()]
-    rules = [i for i, line in enumerate(lines)
-             if line.startswith("╭") or (line and set(line) <= set("-─━ "))]  # fmt: skip
-    if len(rules) >= 2:
-        message = " ".join(line for line in lines[rules[0] + 1 : rules[1]] if line)
-        if message:
-            return message
-    return sweep.last_meaningful_line(lines) or "a bad flag"
 
 
 def check_budget(args: object, options: argparse.Namespace, name: str) -> None:
@@ -616,19 +595,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         default=None,
         help="workers per run (default 1; 2 with --fast; the thesis ran 12)",
     )
-    parser.add_argument(
-        "--backend",
-        choices=["local", "ray", "batched"],
-        default=None,
-        help="the sweeps' backend (default local; batched: each line's runs as one program on "
-        "--device, one worker a run)",
-    )
-    parser.add_argument("--device", choices=["cpu", "cuda"], default=None,
-                        help="with --backend batched: cpu or cuda (default cpu)")  # fmt: skip
-    parser.add_argument("--address", default=None, help="with --backend ray: a running cluster")
-    parser.add_argument("--cpus", type=positive_int, default=None, help="passed to the sweeps")
-    parser.add_argument("--max-concurrent", type=positive_int, default=None,
-                        help="passed to the sweeps")  # fmt: skip
+    figure_sweeps.add_backend_arguments(parser, batched=True, default=None, concurrent=True)
     options = parser.parse_args(argv)
     options.argv = list(argv)
     if options.from_ is not None:

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ROOT, results_folder, run_main
+from a3c_tools import ROOT, read_toml, results_folder, run_main
 from a3c_tools import atari_figures as af
 from a3c_tools.paired import (
     MARGIN,
@@ -59,11 +59,6 @@ from a3c_tools.paired import (
     read_scores,
     runs_for_power,
 )
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 
 PLAN = ROOT / "results" / "confirmatory" / "plan.toml"
 STRIDE = 1000  # sweep.py's and atari_figures' run seeds: seed + 1000 i
@@ -455,12 +450,9 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     opts = parser.parse_args(argv)
     try:
-        plan = tomllib.loads(opts.plan.read_text())
-    except (OSError, ValueError) as error:  # TOMLDecodeError, UnicodeDecodeError
-        print(f"{opts.plan}: {error}", file=sys.stderr)
-        return 2
-    except RecursionError:  # arrays or tables nested past the parser's depth: not a plan
-        print(f"{opts.plan}: TOML nested too deep to read", file=sys.stderr)
+        plan = read_toml(opts.plan)
+    except ValueError as error:
+        print(error, file=sys.stderr)
         return 2
     try:
         return report(plan, opts.plan, opts.check)

@@ -24,12 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
-from a3c_tools import AGENTS
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
+from a3c_tools import AGENTS, read_toml
 
 SWEEP = ["-m", "a3c_tools.sweep"]  # the tools, run with this interpreter
 
@@ -80,9 +75,10 @@ def read_file(path: Path, keys: dict[str, Any]) -> tuple[str, dict]:
     """A data file's name as messages give it, and its top-level table, checked."""
     file = display(path)
     try:
-        return file, table(tomllib.loads(path.read_text(encoding="utf-8")), keys, "file", file)
-    except (OSError, tomllib.TOMLDecodeError) as error:
-        raise DataError(f"{file}: {error}") from None
+        data = read_toml(path)
+    except ValueError as error:
+        raise DataError(f"{file}: {str(error).removeprefix(f'{path}: ')}") from None
+    return file, table(data, keys, "file", file)
 
 
 def words(text: str, where: str) -> list[str]:
@@ -267,17 +263,24 @@ def figure_parser(
     return parser
 
 
-def add_backend_arguments(parser: Parser, batched: bool = False) -> None:
-    """Where the sweeps run: sweep.py's --backend, --address and --cpus (and, for Catch lines,
-    `batched`: --backend batched and its --device)."""
+def add_backend_arguments(
+    parser: Parser, batched: bool = False, default: str | None = "local", concurrent: bool = False
+) -> None:
+    """Where the sweeps run: sweep.py's --backend (its default None where a tool tells a given
+    flag from a default), --address and --cpus; for Catch lines, `batched`: --backend batched
+    and its --device; `concurrent`: --max-concurrent."""
     backends = ["local", "ray", "batched"] if batched else ["local", "ray"]
-    parser.add_argument("--backend", choices=backends, default="local")
+    parser.add_argument("--backend", choices=backends, default=default,
+                        help="where the sweeps run (default local; batched: each line's runs "
+                        "as one program on --device, one worker a run)")  # fmt: skip
     if batched:
-        parser.add_argument(
-            "--device", choices=["cpu", "cuda"], default=None, help="with --backend batched"
-        )
+        parser.add_argument("--device", choices=["cpu", "cuda"], default=None,
+                            help="with --backend batched: cpu or cuda (default cpu)")  # fmt: skip
     parser.add_argument("--address", default=None, help="with --backend ray: a running cluster")
     parser.add_argument("--cpus", type=positive_int, default=None, help="passed to sweep.py")
+    if concurrent:
+        parser.add_argument("--max-concurrent", type=positive_int, default=None,
+                            help="passed to sweep.py")  # fmt: skip
 
 
 def chosen_figures(parser: Parser, texts: list[str], ids: tuple[str, ...]) -> list[str]:

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ATARI_REPORT_CONFIG
+from a3c_tools import ATARI_REPORT_CONFIG, read_toml
 
 EXPECTS = ("better", "worse", "comparable")
 MARGIN = 0.05  # a Catch score difference (success rate) below which two lines are "comparable"
@@ -395,12 +395,7 @@ def random_play(env_id: str) -> tuple[float, float] | None:
     or an Atari game's from atari_report.toml; None for a game the project has no score for."""
     if env_id in RANDOM_SCORES:
         return RANDOM_SCORES[env_id], RANDOM_SLACK[env_id]
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-    with open(ATARI_REPORT_CONFIG, "rb") as f:
-        games = tomllib.load(f)["games"]
+    games = read_toml(ATARI_REPORT_CONFIG)["games"]
     game = games.get(game_of(env_id))
     if game is None:
         return None

@@ -109,7 +109,7 @@ Backends.
   folder gets what a run writes (evaluations.csv, TensorBoard scalars, checkpoint.pt,
   stdout.log), locked as a run locks it (a run in use elsewhere is left alone, as above). It
   runs a3c_ff.py, a3c_lstm.py, a3c_lws.py, a3c_ss.py, a3c_ww.py, a3c_lpq.py and a3c_glpq.py
-  (batched.BATCHED_SCRIPTS) on Catch-v0 with one worker; the runs may differ in their seed,
+  (a3c_runtime.batchable) on Catch-v0 with one worker; the runs may differ in their seed,
   learning rate, weight and bias init; anything else it cannot batch is refused in one line
   (exit 2) before anything runs. Ctrl-C or SIGTERM checkpoints every run at its last update
   (its stdout.log names the signal); the next start resumes them.
@@ -151,7 +151,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import load_script, run_main
+from a3c_tools import load_script, run_main, tyro_message
 from a3c_tools.run_lock import IN_USE_TEXT, run_holder
 
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
@@ -486,38 +486,12 @@ def describe_failure(returncode: int, stderr: str) -> str:
     parts = [exit_text]
     if errors:
         parts.append(errors[-1])
-    last = last_meaningful_line(lines)
+    last = tyro_message(stderr)
     if last and last not in parts:
         parts.append(last)
     text = ": ".join(parts)
     # cut between characters (a str is cut by code point), and say that it was cut
     return text if len(text) <= ERROR_CHARS else text[: ERROR_CHARS - 1] + "…"
-
-
-def _is_border(line: str) -> bool:
-    """Whether a line is box drawing only (U+2500..U+257F: ─ │ ╭ ╮ ╰ ╯ ...)."""
-    return all(ch.isspace() or "\u2500" <= ch <= "\u257f" for ch in line)
-
-
-def last_meaningful_line(lines: list[str]) -> str:
-    """The last line that says something: for output that ends with a box (tyro's errors:
-    a titled top border, the message, ─── separators, 'For full helptext...'), the box's
-    message, its first section's wrapped lines joined; otherwise the last line that is not
-    blank or box drawing. '' when there is none."""
-    lines = [line.strip() for line in lines if line.strip()]
-    tops = [i for i, line in enumerate(lines) if line.startswith("╭")]
-    if lines and lines[-1].startswith("╰") and tops:
-        section: list[str] = []
-        for line in lines[tops[-1] + 1 : -1]:
-            inner = line.strip("│").strip()
-            if not _is_border(inner):
-                section.append(inner)
-            elif section:  # a separator ends the message
-                break
-        if section:
-            return " ".join(section)
-    said = [line.strip("│").strip() for line in lines if not _is_border(line)]
-    return said[-1] if said else ""
 
 
 def execute_run(

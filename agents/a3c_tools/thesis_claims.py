@@ -75,7 +75,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from a3c_tools import run_main
+from a3c_tools import read_toml, run_main
 
 if TYPE_CHECKING:  # the functions below import a3c_tools.confirmatory where they use it
     from a3c_tools.confirmatory import Outcome
@@ -95,11 +95,6 @@ from a3c_tools.paired import (
     read_scores,
     runs_for_power,
 )
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[2]  # the repository
 CLAIMS = Path(__file__).with_name("thesis_claims.toml")
@@ -636,7 +631,7 @@ def study_readings(claims: dict, plan_path: Path | None = None) -> dict[str, Rea
         return {}
     from a3c_tools.study_reading import readings
 
-    plan = tomllib.loads(plan_path.read_text())
+    plan = read_toml(plan_path)
     notes, names = claims.get("study_notes", {}), claims.get("study_lines", {})
     return {r.id: r for r in readings(plan, [o for _, o in found], notes, names)}
 
@@ -649,7 +644,7 @@ def study_outcomes(plan_path: Path | None = None) -> list[tuple[dict, Outcome]]:
         return []
     from a3c_tools.confirmatory import outcomes
 
-    plan = tomllib.loads(plan_path.read_text())
+    plan = read_toml(plan_path)
     found = outcomes(plan)
     return [] if found is None else list(zip(plan["claim"], found, strict=True))
 
@@ -686,7 +681,7 @@ def confirmatory(plan_path: Path = CONFIRMATORY, claims: dict | None = None) -> 
         return []
     from a3c_tools.confirmatory import outcomes, runs_in
 
-    plan = tomllib.loads(plan_path.read_text())
+    plan = read_toml(plan_path)
     found = outcomes(plan)  # None until every claim's runs are in: one look
     read = study_readings(claims or {}, plan_path) if found is not None else {}
     progress = [runs_in(claim["test"], claim["runs"]) for claim in plan.get("claim", [])]
@@ -738,7 +733,7 @@ def study_reading_sections(claims: dict, plan_path: Path = CONFIRMATORY) -> list
         return []
     from a3c_tools.study_reading import power_table
 
-    plan = tomllib.loads(plan_path.read_text())
+    plan = read_toml(plan_path)
     out = ["### Power, planned and achieved", "", claims.get("study_power", "").strip(), ""]
     out += [*power_table(list(found.values()), plan), ""]
     out += ["### What each verdict rests on", "", claims.get("study_rests", "").strip(), ""]
@@ -755,7 +750,7 @@ def confirmatory_status(plan_path: Path = CONFIRMATORY) -> str:
     heading, so that the section's anchor stays the same while the runs come in."""
     from a3c_tools.confirmatory import outcomes, runs_in
 
-    plan = tomllib.loads(plan_path.read_text())
+    plan = read_toml(plan_path)
     if outcomes(plan) is not None:
         return "done: every run is in and the one look is taken"
     lines: dict[tuple[str, ...], tuple[int, int]] = {}  # line -> (runs needed, runs in)
@@ -1035,8 +1030,7 @@ def main(argv: list[str] | None = None) -> int:
         "--check", type=Path, help="exit 1 if this page or its figure differs from the data"
     )
     opts = parser.parse_args(argv)
-    with open(CLAIMS, "rb") as f:
-        claims = tomllib.load(f)
+    claims = read_toml(CLAIMS)
     page, points = render(claims), forest_points(claims)
     if opts.check is not None:
         figure = opts.check.parent / FIGURE

@@ -451,10 +451,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         metavar="K",
         help="run the lines in rounds of K more runs each (default: all runs of a line at once)",
     )
-    figure_sweeps.add_backend_arguments(parser, batched=True)
-    parser.add_argument(
-        "--max-concurrent", type=positive_int, default=None, help="passed to sweep.py"
-    )
+    figure_sweeps.add_backend_arguments(parser, batched=True, concurrent=True)
     options = parser.parse_args(argv)
     options.argv = list(argv)
     options.ids = figure_sweeps.chosen_figures(parser, options.figures, figure_ids())
