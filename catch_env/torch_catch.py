@@ -80,6 +80,7 @@ class TorchCatchVectorEnv:
         self._paddle_rows = self._pixel_cell == rules.paddle_row  # (84,)
         n = num_envs
         self.ball_row = np.full(n, BALL_START_ROW, dtype=np.int64)  # host: known without a sync
+        self._ball_row = torch.full((n,), BALL_START_ROW, device=self.device)  # and the device's
         self.ball_col = torch.zeros(n, dtype=torch.int64, device=self.device)
         self.ball_vx = torch.zeros_like(self.ball_col)
         self.paddle = torch.zeros_like(self.ball_col)
@@ -107,11 +108,12 @@ class TorchCatchVectorEnv:
         start = torch.as_tensor(np.stack([col, vx, paddle]), device=self.device)
         self.ball_col[index], self.ball_vx[index], self.paddle[index] = start.unbind(0)
         self.ball_row[envs] = BALL_START_ROW
+        self._ball_row[index] = BALL_START_ROW
 
     def _frames(self) -> torch.Tensor:
         """Every game's 84x84 frame, (N, 84, 84) uint8: the ball's cell and the paddle's."""
         cell = self._pixel_cell
-        ball_rows = cell[None, :] == torch.as_tensor(self.ball_row, device=self.device)[:, None]
+        ball_rows = cell[None, :] == self._ball_row[:, None]
         ball_cols = cell[None, :] == self.ball_col[:, None]
         paddle_cols = (cell[None, :] - self.paddle[:, None]).abs() <= self.rules.paddle_half
         ball = ball_rows[:, :, None] & ball_cols[:, None, :]
@@ -138,10 +140,11 @@ class TorchCatchVectorEnv:
             raise RuntimeError("Cannot step before reset(): call reset() first.")
         ball = self.ball_col * self._speeds + (self.ball_vx + MAX_BALL_SPEED)
         self.ball_row += 1
+        self._ball_row += 1
         self.ball_col, self.ball_vx = self._next_ball_col[ball], self._next_ball_vx[ball]
         self.paddle = self._next_paddle[self.paddle * self._actions + actions.to(torch.int64)]
         ended = self.ball_row == self.rules.paddle_row  # Catch's only episode end
-        terminated = torch.as_tensor(ended, device=self.device)
+        terminated = self._ball_row == self.rules.paddle_row  # (ended, without an upload)
         caught = (self.ball_col - self.paddle).abs() <= self.rules.paddle_half
         rewards = (terminated & caught).to(torch.float32)
         frames = self._frames()
@@ -195,7 +198,7 @@ class TorchCatchVectorEnv:
     def set_numpy_state(self, env: int, state: dict[str, Any]) -> None:
         """Game `env` from `numpy_state`'s form (a resumed run's checkpoint)."""
         inner = state["env"]
-        self.ball_row[env] = int(np.asarray(inner["ball_row"])[0])
+        self.ball_row[env] = self._ball_row[env] = int(np.asarray(inner["ball_row"])[0])
         self.ball_col[env] = int(np.asarray(inner["ball_col"])[0])
         self.ball_vx[env] = int(np.asarray(inner["ball_vx"])[0])
         self.paddle[env] = int(np.asarray(inner["paddle"])[0])

@@ -70,6 +70,8 @@ SNAPSHOTS = ("agents/a3c_runtime/snapshots.py",)
 BATCHED_BACKEND = ("agents/a3c_runtime/batched.py",)
 BATCHED_SWEEP = ("agents/a3c_tools/batched.py",)
 BATCHABLE = ("agents/a3c_runtime/batchable.py",)
+STACKED_CONVS = ("agents/a3c_runtime/stacked_convs.py",)
+TORCH_CATCH = ("catch_env/torch_catch.py",)
 TOOLS_INIT = ("agents/a3c_tools/__init__.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
 ATARI_FIGURES = ("agents/a3c_tools/atari_figures.py",)
@@ -122,11 +124,11 @@ MUTANTS = [
     Mutant("value-loss-half", "the default value loss loses its 1/2: (G - V)^2", ALL,
            'if value_loss_form == "code":', 'if value_loss_form == "text":', (UNITS,)),
     Mutant("gamma-squared", "each n-step return discounts by gamma^2 per step", ALL,
-           "g = rewards[t] + gamma * np.where(", "g = rewards[t] + gamma**2 * np.where(",
+           "g = rewards[t] + gamma * (dones[t]", "g = rewards[t] + gamma**2 * (dones[t]",
            (BATCHED,)),
     Mutant("returns-cross-episodes", "a return flows back across an episode's end (terminal "
            "or truncated)", ALL,
-           "g = rewards[t] + gamma * np.where(dones[t], done_values[t], g)",
+           "g = rewards[t] + gamma * (dones[t] * done_values[t] + ~dones[t] * g)",
            "g = rewards[t] + gamma * g", (BATCHED,)),
     Mutant("no-bootstrap", "the n-step return starts from 0, not V(s_n), at a rollout's end",
            ALL, "    g = bootstrap_values\n", "    g = np.zeros_like(bootstrap_values)\n",
@@ -355,8 +357,8 @@ MUTANTS = [
            "  # the next", (WRAP_T,)),
     # --- the batched backend: each run its own learning rate, clipping, streams ----------------
     Mutant("batched-one-learning-rate", "every run of a batch learns at run 0's learning rate",
-           BATCHED_BACKEND, "lrs = [annealed_lr(args, self.step_count) for args in self.args]",
-           "lrs = [annealed_lr(self.args[0], self.step_count) for _ in self.args]", (BATCH_T,)),
+           BATCHED_BACKEND, "torch.tensor([args.learning_rate for args in self.args],",
+           "torch.tensor([self.args[0].learning_rate for args in self.args],", (BATCH_T,)),
     Mutant("batched-clip-across-runs", "global-norm clipping scales each run by the largest "
            "norm in the batch, not its own", HOGWILD,
            "global_norm = torch.linalg.vector_norm(norms, dim=1)\n",
@@ -642,6 +644,28 @@ MUTANTS = [
     Mutant("checkpoint-lstm-cells-unbounded", "a checkpoint's --lstm-cells 10**9 passes the "
            "gate's bounds", CHECKPOINTS, '    "lstm_cells": (1, 16_384),',
            '    "lstm_cells": (1, 10**12),', ("tests/test_safe_loading.py",)),
+    Mutant("batched-learning-rate-not-annealed", "the batch's learning rates stay at their "
+           "initial values (--anneal-lr ignored)", BATCHED_BACKEND,
+           "factor = annealed_lr(dataclasses.replace(a, learning_rate=1.0), self.step_count)",
+           "factor = annealed_lr(dataclasses.replace(a, learning_rate=1.0), 0)", (BATCH_T,)),
+    Mutant("stacked-convs-weight-order", "the matmul convolution reads its weight's rows and "
+           "columns swapped", STACKED_CONVS, "weight = weight.permute(0, 2, 4, 3, 5, 1).flatten(1)",
+           "weight = weight.permute(0, 4, 2, 5, 3, 1).flatten(1)",
+           ("tests/test_stacked_convs.py", BATCH_T)),
+    Mutant("stacked-convs-blocks-swapped", "the matmul convolution takes the block below for the "
+           "block right of a cell", STACKED_CONVS,
+           "(blocks[..., :-1, :-1, :], blocks[..., :-1, 1:, :],",
+           "(blocks[..., :-1, :-1, :], blocks[..., 1:, :-1, :],",
+           ("tests/test_stacked_convs.py", BATCH_T)),
+    Mutant("torch-catch-device-row-kept", "the device's ball row is not reset when a game "
+           "starts again (the frames draw the ball off the grid)", TORCH_CATCH,
+           "self._ball_row[index] = BALL_START_ROW", "self._ball_row[index] += 0", (BATCH_T,)),
+    Mutant("returns-not-done-where-done", "an episode's end leaks the next episode's return back "
+           "(the returns' choice by the dones inverted for the bootstrap)", THESIS,
+           "g = rewards[t] + gamma * (dones[t] * done_values[t] + ~dones[t] * g)",
+           "g = rewards[t] + gamma * (dones[t] * done_values[t] + dones[t] * g)",
+           ("tests/test_batched_actors.py", BATCH_T)),
+
 ]
 # fmt: on
 

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import torch
 from conftest import ALL_SCRIPTS, SCRIPTS, load_script, main_exit, shared_for, tiny_args
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +45,38 @@ def test_n_step_returns_of_one_env_are_the_thesis_s(a3c):
     terminal[2] = True
     returns = a3c.n_step_returns(rewards, terminal, zeros, np.array([4.0]), 0.5)
     np.testing.assert_allclose(returns[:, 0], [1.5, 1.0, 2.0])
+
+
+def where_returns(rewards, dones, done_values, bootstrap, gamma):
+    """The returns as the scripts computed them before they took tensors too (np.where)."""
+    returns, g = np.empty_like(rewards), bootstrap
+    for t in range(len(rewards) - 1, -1, -1):
+        g = rewards[t] + gamma * np.where(dones[t], done_values[t], g)
+        returns[t] = g
+    return returns
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    shape=st.tuples(st.integers(1, 6), st.integers(1, 5)),
+    seed=st.integers(0, 2**32 - 1),
+    gamma=st.floats(0.0, 1.0),
+)
+def test_n_step_returns_of_arrays_and_tensors_are_np_where_s_bit_for_bit(shape, seed, gamma):
+    """The scripts' sum-of-products choice gives np.where's returns exactly, on NumPy arrays
+    (a worker's) and on tensors (the batched backend's, on its device)."""
+    a3c = load_script("a3c_ff")
+    rng = np.random.default_rng(seed)
+    rewards = rng.normal(size=shape).astype(np.float32)
+    dones = rng.random(shape) < 0.3
+    done_values = (rng.normal(size=shape) * (rng.random(shape) < 0.5)).astype(np.float32)
+    bootstrap = rng.normal(size=shape[1]).astype(np.float32)
+    expected = where_returns(rewards, dones, done_values, bootstrap, gamma)
+    arrays = a3c.n_step_returns(rewards, dones, done_values, bootstrap, gamma)
+    assert arrays.dtype == np.float32 and np.array_equal(arrays, expected)
+    tensors = a3c.n_step_returns(*map(torch.as_tensor, (rewards, dones, done_values, bootstrap)),
+                                 gamma)  # fmt: skip
+    assert tensors.dtype == torch.float32 and np.array_equal(tensors.numpy(), expected)
 
 
 @pytest.mark.parametrize("name", ["a3c_ff", "a3c_glpq"])

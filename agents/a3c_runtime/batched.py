@@ -236,13 +236,13 @@ class BatchedA3C:
         frames[0] = envs.stack
         actions = torch.zeros((t_max, n_runs), dtype=torch.int64, device=self.device)
         rewards = torch.zeros((t_max, n_runs), dtype=torch.float32, device=self.device)
-        dones = np.zeros((t_max, n_runs), dtype=bool)
+        dones = torch.zeros((t_max, n_runs), dtype=torch.bool, device=self.device)
         rollout_state = tuple(s.clone() for s in self.state)  # (LSTM: the rollout's start)
         with torch.no_grad():
             for t in range(t_max):
                 log_probs, _, self.state = self.act(network_frames(frames[t][:, None]), self.state)
                 actions[t] = sample_actions(log_probs[:, 0].float().exp(), self.uniforms.next())
-                frames[t + 1], rewards[t], _, ended = envs.step(actions[t])
+                frames[t + 1], rewards[t], _, ended = envs.step(actions[t])  # (ended: the host's)
                 if ended.any():  # all together: the runs' balls started on one row
                     dones[t] = True
                     self.add_stats(episodes=1.0, return_sum=envs.final_returns,
@@ -250,13 +250,13 @@ class BatchedA3C:
                     self.state = tuple(torch.zeros_like(s) for s in self.state)  # (LSTM)
                     break
             n = t + 1
-            bootstrap = np.zeros(n_runs, dtype=np.float32)
-            if not dones[n - 1].all():  # V(s_n), as the worker's learning pass computes it
+            bootstrap = torch.zeros(n_runs, dtype=torch.float32, device=self.device)
+            if not ended.any():  # V(s_n), as the worker's learning pass computes it
                 bootstrap = self.act(network_frames(frames[n][:, None]), self.state)[1][:, 0]
-                bootstrap = bootstrap.float().cpu().numpy()
-        done_values = np.zeros((n, n_runs), dtype=np.float32)  # (Catch never truncates)
+        # the script's returns, on the device (Catch never truncates: no done values)
+        done_values = torch.zeros((n, n_runs), dtype=torch.float32, device=self.device)
         returns = self.module.n_step_returns(
-            rewards[:n].cpu().numpy(), dones[:n], done_values, bootstrap, a.gamma
+            rewards[:n], dones[:n], done_values, bootstrap.float(), a.gamma
         )
         rollout = frames[:n].transpose(0, 1)  # (N, n, 4, 84, 84); LSTM: (N, T = n, B = 1, ...)
         grads, (policy_loss, value_loss, entropy) = vmap(grad(self.loss, has_aux=True))(
@@ -264,7 +264,7 @@ class BatchedA3C:
             self.buffers,
             network_frames(rollout[:, :, None] if self.state else rollout),
             actions[:n].T.contiguous(),
-            torch.as_tensor(returns.T.copy(), device=self.device),
+            returns.T.contiguous(),
             rollout_state,
         )
         self.last_actions = actions[:n].T  # (N, n), for the equivalence tests

@@ -372,11 +372,13 @@ def n_step_returns(
     """The n-step returns of a rollout of K envs, all (T, K) but bootstrap_values (K,):
     G_t = r_t + gamma * G_{t+1} from G_T = V(s_T), the last state's value, except where an
     episode ended at step t (dones): there G_t = r_t + gamma * done_values_t, which is 0 after a
-    terminal state and V(last state) after a truncation."""
-    returns = np.empty_like(rewards)
+    terminal state and V(last state) after a truncation. NumPy arrays, or tensors (the batched
+    backend's, on its device): the choice by the dones is a sum of products, exact for finite
+    values (x * 1 + y * 0 is x), so both give np.where's values."""
+    returns = rewards * 0
     g = bootstrap_values
     for t in range(len(rewards) - 1, -1, -1):
-        g = rewards[t] + gamma * np.where(dones[t], done_values[t], g)
+        g = rewards[t] + gamma * (dones[t] * done_values[t] + ~dones[t] * g)
         returns[t] = g
     return returns
 
