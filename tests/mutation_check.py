@@ -666,6 +666,13 @@ MUTANTS = [
            "g = rewards[t] + gamma * (dones[t] * done_values[t] + dones[t] * g)",
            ("tests/test_batched_actors.py", BATCH_T)),
 
+    Mutant("batched-precision-ignored", "a batch opted into bf16 computes in fp32 all the same",
+           BATCHED_BACKEND, "            self.precision, self.device.type\n",
+           '            "fp32" if self.precision else "bf16", self.device.type\n', (BATCH_T,)),
+    Mutant("batched-tf32-on-a-cpu", "a batch on the CPU takes --precision tf32 (and computes "
+           "fp32, saying tf32)", BATCHED_BACKEND,
+           'if self.precision == "tf32" and self.device.type != "cuda":',
+           'if self.precision == "tf32" and self.device.type == "mps":', (BATCH_T,)),
 ]
 # fmt: on
 

@@ -33,6 +33,7 @@ from conftest import (
     FORK,
     ROOT,
     load_script,
+    main_exit,
     read_checkpoint,
     read_evaluations,
     rewrite_checkpoint,
@@ -364,7 +365,7 @@ def batched_sweep(out, *extra, runs: int = 2, steps: int = 60):
         # K = 4 envs per worker would run as K = 1 (issue 103, 5a)
         (["--", "--envs-per-worker", "4"], "cannot batch --envs-per-worker 4: it needs 1"),
         (["--", "--optimizer", "adam"], "cannot batch --optimizer adam"),
-        (["--", "--precision", "bf16"], "cannot batch --precision bf16"),
+        (["--", "--precision", "tf32"], "--precision tf32 is a GPU's: it needs --device cuda"),
         (["--sample", "activation=choice:relu,elu"], "differ in --activation"),
         (["--sample", "gamma=uniform:0.9:0.99"], "differ in --gamma"),
         (["--", "--t-max", "0"], "--t-max must be >= 1"),
@@ -550,6 +551,69 @@ def test_each_runs_evaluation_is_the_runtimes_evaluation_of_its_network(name):
         expected = evaluate_network(network, envs, 15, args)
         assert result["global_step"] == 15 and result["scores"] == expected["scores"]
     assert sum(map(sum, (r["scores"] for r in results))) > 0  # some episodes are caught
+
+
+@pytest.mark.parametrize(
+    ("precision", "acting", "learning"),
+    [("fp32", False, False), ("bf16", True, True), ("bf16-learn", False, True)],
+)
+def test_each_batched_forward_pass_runs_in_its_precision(precision, acting, learning):
+    """--precision opts a batch into bf16 as it does a worker (tests/test_precision.py): the
+    acting passes under bf16 autocast for bf16, the learning passes (the loss's forward, and
+    the bootstrap value, which the worker takes from its learning pass) for bf16 and
+    bf16-learn; fp32 neither. The parameters and optimizer statistics stay float32."""
+    module = load_script("a3c_ff")
+    runs_args = run_args(module, {"t_max": 5}, steps_of(3, 5), RUN_FLAGS)
+    runs_args = [dataclasses.replace(args, precision=precision) for args in runs_args]
+    batch = BatchedA3C(module, [BatchedRun(args) for args in runs_args], "cpu")
+    calls, phase = [], ["act"]
+    act, loss, forward = batch.act, batch.loss, module.ActorCritic.forward
+
+    def recording_act(frames, state=(), precision=None):
+        phase[0] = "act" if precision is None else "learn"  # (the bootstrap's: learning's)
+        return act(frames, state, precision)
+
+    def recording_loss(*args):
+        phase[0] = "learn"
+        return loss(*args)
+
+    def recording_forward(self, *inputs, **kwargs):
+        calls.append((phase[0], torch.is_autocast_enabled("cpu")))
+        return forward(self, *inputs, **kwargs)
+
+    batch.act, batch.loss = recording_act, recording_loss
+    try:
+        module.ActorCritic.forward = recording_forward
+        for _ in range(3):  # (rollouts of 5, each bootstrapped: a 15-step episode ends at 3)
+            batch.update()
+    finally:
+        module.ActorCritic.forward = forward
+    assert {on for where, on in calls if where == "act"} == {acting}, calls
+    assert {on for where, on in calls if where == "learn"} == {learning}, calls
+    assert all(p.dtype == torch.float32 for p in batch.params + batch.optimizer.square_avg)
+
+
+def test_tf32_is_a_gpus_and_refused_elsewhere_in_one_line(monkeypatch, capsys):
+    """--precision tf32 (TF32 matrix multiplies on a GPU) is the batched backend's on cuda:
+    a batch on the CPU and a script's own run (its workers on the CPU) refuse it in one line,
+    exit 2, before anything is created."""
+    module = load_script("a3c_ff")
+    args = run_args(module, {"t_max": 5}, 100, RUN_FLAGS[:1])[0]
+    with pytest.raises(RunUsageError, match="tf32 is a GPU's: it needs --device cuda"):
+        BatchedA3C(module, [BatchedRun(dataclasses.replace(args, precision="tf32"))], "cpu")
+    code, err = main_exit(module, ["--precision", "tf32", "--run-dir", "never"], monkeypatch,
+                          capsys)  # fmt: skip
+    assert code == 2 and "the sweep's batched backend takes it" in err, err
+    assert len(err.strip().splitlines()) == 1 and not Path("never").exists()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_tf32_on_a_gpu_turns_on_tf32_and_fp32_turns_it_off():
+    runtime_batched.set_up_device("cuda", "tf32")
+    assert torch.backends.cuda.matmul.allow_tf32 and torch.backends.cudnn.allow_tf32
+    runtime_batched.set_up_device("cuda", "fp32")
+    assert not (torch.backends.cuda.matmul.allow_tf32 or torch.backends.cudnn.allow_tf32)
+    assert torch.backends.cudnn.deterministic and not torch.backends.cudnn.benchmark
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")

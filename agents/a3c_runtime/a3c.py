@@ -32,7 +32,7 @@ from .evaluation import (
     evaluator,
     make_eval_envs,
 )
-from .flags import UsageError, probe_env, resolve_defaults
+from .flags import UsageError, probe_env, refuse_tf32, resolve_defaults
 from .hogwild import Shared, annealed_lr, seed_everything
 from .resume import given_flags, resumed_args
 from .run_folder import RunFolder, resume_folder, run_folder_path
@@ -54,6 +54,7 @@ def train(
     dies and WriteFailed when a file cannot be written, each with `run_dir` set. `run` passes a
     resumed run's checkpoint and its folder, locked before the checkpoint was read."""
     torch.set_num_threads(1)  # before any torch op, so that forking the workers is safe
+    refuse_tf32(args.precision)
     if args.resume and folder is None:
         check_checkpoint_path(args.resume, "--resume")  # before the folder is touched
         folder = resume_folder(args)

@@ -1,6 +1,7 @@
 """Which runs the batched trainer (a3c_runtime.batched) takes as one batch: the scripts of
 BATCHED_SCRIPTS (FF, LSTM, LWS, SS, WW, LPQ, GLPQ) on Catch-v0 with one worker and one env per
-run, RMSprop, fp32, runs that differ only in PER_RUN_FLAGS. `batch_problem` says why others are
+run, RMSprop, runs that differ only in PER_RUN_FLAGS (their --precision the batch's: fp32 by
+default; bf16, bf16-learn, and tf32 on a GPU, opt in). `batch_problem` says why others are
 not, in one line; the trainer refuses them, and the sweep before anything runs."""
 
 from __future__ import annotations
@@ -23,10 +24,6 @@ REQUIRED = {
     "num_workers": ("1", lambda v: v == 1),
     "envs_per_worker": ("1", lambda v: v == 1),
     "optimizer": ("rmsprop", lambda v: v == "rmsprop"),
-    "precision": (
-        "fp32 or auto (the batched runs compute in fp32)",
-        lambda v: v in ("fp32", "auto"),
-    ),
     "track": ("off", lambda v: not v),
     "capture_video": ("off", lambda v: not v),
     "time_limit": ("none", lambda v: v is None),
@@ -64,6 +61,7 @@ def batch_problem(script: str, runs_args: list[Any]) -> str | None:
 
 
 def resolve_run_args(args: Any) -> Any:
-    """A run's Args with the defaults filled in; the batched runs compute in fp32."""
-    args.precision = "fp32"  # (auto: the batched backend's only precision)
+    """A run's Args with the defaults filled in; --precision auto is fp32 in a batch."""
+    if args.precision == "auto":  # the batched runs' default: fp32, the thesis's
+        args.precision = "fp32"
     return resolve_defaults(args)

@@ -35,7 +35,7 @@ from catch_env.torch_catch import NumpyStateView, TorchCatchVectorEnv
 from .batchable import batch_problem
 from .checkpoints import Checkpoint, restore, save_checkpoint
 from .evaluation import evaluate_network, make_eval_envs
-from .flags import UsageError
+from .flags import UsageError, autocast_contexts
 from .hogwild import (
     RMSprop,
     WorkerStats,
@@ -117,6 +117,13 @@ class BatchedA3C:
         self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
         if conv_form not in CONV_FORMS:
             raise ValueError(f"conv_form {conv_form!r}; valid: {', '.join(CONV_FORMS)}")
+        self.precision = runs[0].args.precision  # (the batch's: batch_problem)
+        if self.precision == "tf32" and self.device.type != "cuda":
+            raise UsageError("--precision tf32 is a GPU's: it needs --device cuda")
+        # the worker's autocast of its acting and learning passes, on the batch's device
+        self.act_precision, self.learn_precision = autocast_contexts(
+            self.precision, self.device.type
+        )
         if (problem := batch_problem(self.agent.script, [run.args for run in runs])) is not None:
             raise UsageError(problem)
         # a run alone computes beside a copy of itself whose results are dropped: vmap over one
@@ -201,12 +208,13 @@ class BatchedA3C:
         weights = {**dict(zip(self.names, params, strict=True)), **buffers}
         return functional_call(self.base, weights, (frames, state) if state else (frames,))
 
-    def act(self, frames: torch.Tensor, state: tuple = ()) -> tuple:
+    def act(self, frames: torch.Tensor, state: tuple = (), precision: Any = None) -> tuple:
         """Every run's forward of frames (N, B, 4, 84, 84): log-probs (N, B, A), values (N, B)
-        and (LSTM) the state after the step. In grad mode, though nothing requires a gradient:
-        acting shortcuts that compare data (LWS's cache, torch.equal) are taken only without
-        it, and vmap cannot batch them; the values are the same."""
-        with torch.enable_grad():
+        and (LSTM) the state after the step, under the acting pass's autocast (or `precision`'s).
+        In grad mode, though nothing requires a gradient: acting shortcuts that compare data
+        (LWS's cache, torch.equal) are taken only without it, and vmap cannot batch them; the
+        values are the same."""
+        with torch.enable_grad(), precision or self.act_precision:
             if not state:
                 return (*vmap(self.forward)(self.params, self.buffers, frames, ()), ())
             log_probs, values, state = vmap(self.forward)(
@@ -216,11 +224,13 @@ class BatchedA3C:
 
     def loss(self, params, buffers, frames, actions, returns, state):  # noqa: ANN001, ANN201
         a = self.args[0]
-        if state:  # LSTM: the rollout (T = n, B = 1) replayed from its start state
-            log_probs, values, _ = self.forward(params, buffers, frames, state)
-            log_probs, values = log_probs.flatten(0, 1), values.flatten(0, 1)
-        else:
-            log_probs, values = self.forward(params, buffers, frames, ())
+        with self.learn_precision:  # (the learning pass's autocast, as the worker's)
+            if state:  # LSTM: the rollout (T = n, B = 1) replayed from its start state
+                log_probs, values, _ = self.forward(params, buffers, frames, state)
+                log_probs, values = log_probs.flatten(0, 1), values.flatten(0, 1)
+            else:
+                log_probs, values = self.forward(params, buffers, frames, ())
+        log_probs, values = log_probs.float(), values.float()  # the loss in float32
         loss, policy_loss, value_loss, entropy = self.module.a3c_loss(
             log_probs, actions, values, returns, a.ent_coef, a.vf_coef, a.value_loss_form
         )
@@ -252,7 +262,9 @@ class BatchedA3C:
             n = t + 1
             bootstrap = torch.zeros(n_runs, dtype=torch.float32, device=self.device)
             if not ended.any():  # V(s_n), as the worker's learning pass computes it
-                bootstrap = self.act(network_frames(frames[n][:, None]), self.state)[1][:, 0]
+                bootstrap = self.act(
+                    network_frames(frames[n][:, None]), self.state, self.learn_precision
+                )[1][:, 0]  # (as the worker's learning pass computes it: its autocast)
         # the script's returns, on the device (Catch never truncates: no done values)
         done_values = torch.zeros((n, n_runs), dtype=torch.float32, device=self.device)
         returns = self.module.n_step_returns(
@@ -318,11 +330,12 @@ class BatchedA3C:
                         self.agent.script, snapshot)  # fmt: skip
 
 
-def set_up_device(device: str) -> None:
+def set_up_device(device: str, precision: str = "fp32") -> None:
     """torch's settings for a batch on this device (the benchmarks' too)."""
-    if device == "cuda":  # fp32 as the scripts compute it, and the same run twice the same:
-        torch.backends.cudnn.allow_tf32 = False  # no TF32, cuDNN's deterministic algorithms
-        torch.backends.cuda.matmul.allow_tf32 = False
+    if device == "cuda":  # fp32 as the scripts compute it (TF32 only where --precision tf32
+        tf32 = precision == "tf32"  # opts in), and the same run twice the same: cuDNN's
+        torch.backends.cudnn.allow_tf32 = tf32  # deterministic algorithms
+        torch.backends.cuda.matmul.allow_tf32 = tf32
         torch.backends.cudnn.deterministic = True
         torch.backends.cudnn.benchmark = False
     else:  # one core, as one process-backend run uses
@@ -356,7 +369,7 @@ def train_batched(
     Returns each run's outcome: "done" or "stopped by <signal>", its wall time and closing line.
     should_stop() names the signal that stops the batch, or None: a stop checkpoints every run
     at its last update. log_interval: seconds between the batch's console lines."""
-    set_up_device(device)
+    set_up_device(device, runs[0].args.precision)
     batch = BatchedA3C(module, runs, device)  # (refuses runs it cannot batch: nothing written)
     allow_open_files(FILES_PER_RUN * len(runs) + 256)
     folders, logs, consoles = [], [], []

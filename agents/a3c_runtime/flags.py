@@ -140,15 +140,29 @@ def resolve_precision(precision: str, envs_per_worker: int) -> str:
     return precision
 
 
-def autocast_contexts(precision: str) -> tuple[torch.autocast, torch.autocast]:
-    """The CPU autocast contexts of a worker's (acting, learning) forward passes for a resolved
-    --precision: fp32 neither, bf16 both, bf16-learn the learning pass only."""
-    if precision not in ("fp32", "bf16", "bf16-learn"):
-        raise ValueError(f"unresolved --precision {precision!r}: fp32, bf16 or bf16-learn")
+def autocast_contexts(
+    precision: str, device_type: str = "cpu"
+) -> tuple[torch.autocast, torch.autocast]:
+    """The autocast contexts of (acting, learning) forward passes on device_type (a worker's:
+    the CPU) for a resolved --precision: fp32 and tf32 neither (TF32 is a GPU's setting, made
+    by the batched backend), bf16 both, bf16-learn the learning pass only."""
+    if precision not in ("fp32", "bf16", "bf16-learn", "tf32"):
+        raise ValueError(f"unresolved --precision {precision!r}: fp32, bf16, bf16-learn or tf32")
     return (
-        torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"),
-        torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision != "fp32"),
+        torch.autocast(device_type, dtype=torch.bfloat16, enabled=precision == "bf16"),
+        torch.autocast(device_type, dtype=torch.bfloat16, enabled=precision.startswith("bf16")),
     )
+
+
+def refuse_tf32(precision: str) -> None:
+    """UsageError for --precision tf32 on the scripts' own (process) backend: TF32 is a GPU's,
+    and the workers compute on the CPU."""
+    if precision == "tf32":
+        raise UsageError(
+            "--precision tf32 is a GPU's: the sweep's batched backend takes it (python -m "
+            "a3c_tools.sweep SCRIPT ... --backend batched --device cuda -- --precision tf32); a "
+            "script's own run computes on the CPU: valid there: auto, fp32, bf16, bf16-learn"
+        )
 
 
 def probe_env(make_env: Any, env_id: str) -> int:

@@ -76,8 +76,9 @@ def planned_args(module: ModuleType, flags: list[str]) -> Any:
         raise UsageError(f"the run flags {' '.join(flags)!r} do not parse: {e}") from None
 
 
-def check_batchable(script: str, runs: list[Any], out: Path) -> None:
-    """UsageError (one line) unless the sweep's runs can be one batch: before anything runs."""
+def check_batchable(script: str, runs: list[Any], out: Path, device: str = "cpu") -> None:
+    """UsageError (one line) unless the sweep's runs can be one batch on device: before
+    anything runs."""
     from a3c_tools import load_script
 
     module = load_script(script)
@@ -86,6 +87,8 @@ def check_batchable(script: str, runs: list[Any], out: Path) -> None:
     problem = batch_problem(script, runs_args)
     if problem is not None:
         raise UsageError(problem)
+    if runs_args[0].precision == "tf32" and device != "cuda":
+        raise UsageError("--precision tf32 is a GPU's: it needs --device cuda")
     probe(module, [resolve_run_args(copy.deepcopy(args)) for args in runs_args[:2]])
 
 
@@ -93,7 +96,9 @@ def probe(module: ModuleType, runs_args: list[Any]) -> None:
     """UsageError (one line) where the network with these flags does not run under vmap (a
     layer that branches on its data, say): one update of a batch of these runs, before any run
     folder exists."""
-    runs = [BatchedRun(dataclasses.replace(args, total_timesteps=10**9)) for args in runs_args]
+    runs = [BatchedRun(dataclasses.replace(args, total_timesteps=10**9, precision=(
+        "fp32" if args.precision == "tf32" else args.precision)))  # (TF32: the network's fp32)
+        for args in runs_args]  # fmt: skip
     try:
         BatchedA3C(module, runs, "cpu").update()
     except UsageError:

@@ -1195,7 +1195,7 @@ def check_batched(args: argparse.Namespace, runs: list[Run], out: Path) -> None:
         if not torch.cuda.is_available():
             raise UsageError("--device cuda: torch sees no CUDA device here; use --device cpu")
     try:
-        check_batchable(args.script, runs, out)
+        check_batchable(args.script, runs, out, args.device)
     except RunUsageError as e:
         raise UsageError(str(e)) from None
 

@@ -65,14 +65,16 @@ class Args:
     """the value loss: code, vf_coef * 0.5 * (G - V)^2, as the thesis's code computed it
     (TensorFlow's l2_loss) in every thesis run; text, vf_coef * (G - V)^2, as Algorithm 1 writes
     it (twice code's value gradient at the same vf_coef)"""
-    precision: Literal["auto", "fp32", "bf16", "bf16-learn"] = "auto"
+    precision: Literal["auto", "fp32", "bf16", "bf16-learn", "tf32"] = "auto"
     """the workers' network passes: fp32; bf16: acting and learning under bfloat16 CPU autocast;
     bf16-learn: acting in fp32, the learning pass (its forward computed again, and its
     gradients) in bf16. Weights, optimizer statistics, returns and the loss stay float32; the
     evaluator and --evaluate play in fp32. auto: fp32 with K = 1 (the thesis's algorithm and
     precision) on every CPU; with K > 1 envs per worker, bf16 on a CPU with native bf16, fp32
     elsewhere (results/throughput_batched). bf16-learn, faster at K = 1 where bf16 is native
-    (results/precision_catch), is another computation: one flag away"""
+    (results/precision_catch), is another computation: one flag away. tf32: fp32 with a GPU's
+    TF32 matrix multiplies and convolutions, for the sweep's batched backend on --device cuda
+    only (the workers compute on the CPU)"""
 
     # Optimizer (thesis 2.2.3, 5.2.2, A.1.2)
     optimizer: Literal["rmsprop", "adam"] = "rmsprop"
