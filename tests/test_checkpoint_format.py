@@ -144,6 +144,34 @@ def test_an_older_checkpoint_holding_an_attack_is_one_line_at_every_reader(good,
         assert not list(path.parent.glob("*.new")) and not list(path.parent.glob("*.gif"))
 
 
+@pytest.mark.parametrize("where", ["swapped", "beyond the file", "bytes left over"])
+def test_tensors_not_where_the_header_puts_them_are_one_line(
+    where, good, tmp_path, monkeypatch, capsys
+):
+    """Where each tensor's bytes lie (in order, each of its shape's size, filling the file) is
+    safetensors' loader's check: a sealed file whose tensor table is the network's but whose
+    bytes are not where the table puts them is refused in one line, exit 2, nothing allocated
+    by the offsets it declares."""
+    data = good.read_bytes()
+    size = int.from_bytes(data[:8], "little")
+    header, tensors = json.loads(data[8 : 8 + size]), data[8 + size :]
+    a, b = header["model/value.weight"], header["model/policy.weight"]  # of 256 and 768 floats
+    if where == "swapped":
+        a["data_offsets"], b["data_offsets"] = b["data_offsets"], a["data_offsets"]
+    elif where == "beyond the file":
+        a["data_offsets"] = [a["data_offsets"][0], 2**62]
+    else:
+        tensors += bytes(64)
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    path.write_bytes(resealed(header, tensors))
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    code, err = main_exit(load_script("a3c_ff"), ["--evaluate", str(path)], monkeypatch, capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"checkpoint {str(path)!r} is corrupt: " in err, err
+    assert (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024 < 200  # MB
+
+
 # ------------------------------------------------------------------------------------------------
 # The fuzz test: files made from a good checkpoint by byte flips, truncations, huge declared
 # sizes and changes of its structure (fields, tensors, the header), each loaded by the gate in

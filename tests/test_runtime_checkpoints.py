@@ -25,6 +25,7 @@ from conftest import (
     shared_for,
     tiny_args,
 )
+from pydantic import ValidationError
 
 import catch_env  # noqa: F401  (registers Catch-v0)
 
@@ -81,7 +82,7 @@ def test_checkpoint_round_trip_and_errors(name, tmp_path):
     with pytest.raises(runtime.UsageError, match="older format .* convert it: python -m a3c_tools"):
         runtime.load_checkpoint(str(tmp_path / "other.pt"), agent)
     safetensors.torch.save_file({"weights": torch.ones(1)}, tmp_path / "other.pt")
-    with pytest.raises(runtime.UsageError, match="not a checkpoint written by the agent scripts"):
+    with pytest.raises(runtime.UsageError, match="not a checkpoint: its __metadata__: Field req"):
         runtime.load_checkpoint(str(tmp_path / "other.pt"), agent)
     elu = tiny_args(module, activation="elu")
     with pytest.raises(runtime.UsageError, match="--activation"):
@@ -405,10 +406,16 @@ def test_a_checkpoint_of_another_network_names_its_first_four_missing_keys():
 
 def test_a_fields_type_is_checked_against_its_annotation_through_annotated():
     """tyro's Annotated[T, ...] flags: the value is checked against T, not the metadata."""
+    import dataclasses
     import typing
 
-    of_type = runtime.checkpoints.of_type
-    hint = typing.Annotated[int, "a tyro note"]
-    assert of_type(3, hint) and not of_type("3", hint) and not of_type(3.5, hint)
-    choice = typing.Annotated[typing.Literal["fp32", "auto"], "note"]
-    assert of_type("auto", choice) and not of_type("bf16", choice)
+    @dataclasses.dataclass
+    class Args:
+        n: typing.Annotated[int, "a tyro note"] = 1
+        precision: typing.Annotated[typing.Literal["fp32", "auto"], "note"] = "fp32"
+
+    flags = runtime.checkpoints.flags_type(Args)
+    flags.validate_python({"n": 3, "precision": "auto"})
+    for bad in ({"n": "3"}, {"n": 3.5}, {"precision": "bf16"}):
+        with pytest.raises(ValidationError):
+            flags.validate_python(bad)

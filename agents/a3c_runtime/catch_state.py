@@ -9,14 +9,14 @@ from typing import Any
 
 import torch
 
-DTYPE_NAMES = {torch.float64: "F64", torch.int64: "I64", torch.uint8: "U8", torch.bool: "BOOL"}
-
 
 @functools.cache
 def catch_layout() -> dict[str, tuple[str, tuple[int, ...]]]:
     """The arrays of a Catch vector env's state (catch_env.wrappers' get_state, its generators
     apart) by path, with their dtypes and their shapes after the leading one (the env count)."""
     from catch_env.wrappers import make_vector_env
+
+    from .checkpoint_file import DTYPE_NAMES
 
     envs = make_vector_env("Catch-v0", 1)
     envs.reset(seed=0)

@@ -5,8 +5,9 @@ declared schema (`Document`: every field typed and bounded, unknown fields refus
 is sealed with the SHA-256 of its bytes. Such a file holds no code, no nesting, no views and no
 shared or cyclic references, so none needs a check; what it can hold is checked here (the
 header, the seal, the document) and by the gate (a3c_runtime.checkpoints: the tensor table
-against the network the flags build) before a tensor is read. Written atomically. The seal
-guards against accidents (a flipped bit, a truncated copy), not against someone: anyone can
+against the network the flags build) before a tensor is read, then by safetensors' own loader
+(where each tensor's bytes lie) and here (their values). Written atomically. The seal guards
+against accidents (a flipped bit, a truncated copy), not against someone: anyone can
 recompute it."""
 
 import contextlib
@@ -20,7 +21,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import torch
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from .catch_state import catch_layout, catch_problem, part_at
 from .flags import UsageError
@@ -29,10 +30,9 @@ CHECKPOINT_FORMAT = "a3c-checkpoint-v3"  # safetensors with a declared document
 MAX_HEADER = 16 << 20  # bytes of the JSON header (tensor table and document), read before all
 MAX_STEP = 10**13
 MAX_PENDING, MAX_WORKERS, MAX_ENVS = 10_000, 1024, 4096
-DTYPES = {"F64": torch.float64, "F32": torch.float32, "BF16": torch.bfloat16,
-          "F16": torch.float16, "I64": torch.int64, "I32": torch.int32, "I16": torch.int16,
-          "I8": torch.int8, "U8": torch.uint8, "BOOL": torch.bool}  # fmt: skip
-DTYPE_NAMES = {dtype: name for name, dtype in DTYPES.items()}
+DTYPE_NAMES = {torch.float64: "F64", torch.float32: "F32", torch.bfloat16: "BF16",
+               torch.float16: "F16", torch.int64: "I64", torch.int32: "I32", torch.int16: "I16",
+               torch.int8: "I8", torch.uint8: "U8", torch.bool: "BOOL"}  # fmt: skip
 SEAL = "0" * 64  # the seal's place in the header while the SHA-256 is computed
 
 
@@ -107,11 +107,11 @@ class Document(Strict):
 
 
 class Entry(Strict):
-    """A tensor in safetensors' header."""
+    """A tensor in safetensors' header (where its bytes lie, safetensors' loader checks)."""
 
-    dtype: Literal[tuple(DTYPES)]  # type: ignore[valid-type]
+    dtype: Literal[tuple(DTYPE_NAMES.values())]  # type: ignore[valid-type]
     shape: Annotated[list[Annotated[int, Field(ge=0, le=1 << 40)]], Field(max_length=8)]
-    data_offsets: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=2, max_length=2)]
+    data_offsets: tuple[int, int]
 
 
 class Metadata(Strict):
@@ -121,7 +121,14 @@ class Metadata(Strict):
 
 TensorName = Annotated[str, Field(pattern=r"^(model|optimizer|pending/\d{1,5}|workers/\d{1,4})/"
                                           r"[A-Za-z0-9_./]{1,200}$")]  # fmt: skip
-TENSOR_TABLE = TypeAdapter(dict[TensorName, Entry])
+
+
+class Header(Strict):
+    """safetensors' header: the document and the seal (metadata), each tensor by name."""
+
+    model_config = ConfigDict(extra="allow")
+    __pydantic_extra__: dict[TensorName, Entry]
+    metadata: Metadata = Field(alias="__metadata__")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -130,8 +137,8 @@ TENSOR_TABLE = TypeAdapter(dict[TensorName, Entry])
 def encode(raw: dict, checked: bool = True) -> bytes:
     """The file of a checkpoint's fields (save_checkpoint's `raw`; any other key goes into the
     document as it is). ValueError for what the format cannot hold: a view of more than its
-    storage, tensors sharing storage, a worker state of another form, a document the schema
-    refuses (checked=False, for tests: written as it is)."""
+    storage, a worker state of another form, a document the schema refuses (checked=False, for
+    tests: written as it is); safetensors' RuntimeError for tensors sharing memory."""
     tensors = {f"model/{k}": v for k, v in raw["model"].items()}
     for key, value in raw["optimizer"].items():
         for i, tensor in enumerate(value if isinstance(value, list) else [value]):
@@ -150,14 +157,10 @@ def encode(raw: dict, checked: bool = True) -> bytes:
                 tensors[f"{prefix}/env/{name}"] = part_at(env["env"], name)
         rngs = None if env is None else [pcg64(s) for s in env["env"]["env"]["rngs"]]
         workers[str(worker_id)] = {"generator": pcg64(generator["bit_generator"]), "env": rngs}
-    storages = set()
-    for name, tensor in tensors.items():
+    for name, tensor in tensors.items():  # (before .contiguous(), which would copy a view)
         dense = tensor.layout == torch.strided and tensor.dtype in DTYPE_NAMES
         if not dense or tensor.numel() * tensor.element_size() > storage_bytes(tensor):
             raise ValueError(f"{name} is not a dense tensor of a safetensors dtype")
-        if storage_bytes(tensor) and tensor.untyped_storage().data_ptr() in storages:
-            raise ValueError(f"{name} shares its storage with another tensor")
-        storages.add(tensor.untyped_storage().data_ptr())
     parts = ("model", "optimizer", "pending_evaluations", "workers", "format", "pending_steps")
     document = {"format": CHECKPOINT_FORMAT, **{k: v for k, v in raw.items() if k not in parts},
                 "pending_steps": [step for step, _ in raw["pending_evaluations"]],
@@ -215,8 +218,9 @@ def read_checkpoint(
     path: str, flag: str | None = None, data: bytes | None = None
 ) -> tuple[dict, dict[str, Entry], bytes]:
     """(the document, the tensor table, the bytes) of the checkpoint at path (or of its bytes,
-    `data`): its header bounded, its seal verified, its document validated by the schema, its
-    table consistent with its bytes; no tensor read. Else a one-line UsageError."""
+    `data`): its header bounded and validated, its seal verified, its document validated by the
+    schema; no tensor read (where their bytes lie, read_tensors' loader checks). Else a
+    one-line UsageError."""
     if data is None:
         check_checkpoint_path(path, flag)
         try:
@@ -229,42 +233,22 @@ def read_checkpoint(
             f"you trust it, convert it: {convert_command(path)}"
         )
     size = int.from_bytes(data[:8], "little")
-    if len(data) < 8 or size > min(MAX_HEADER, len(data) - 8):
-        raise UsageError(f"checkpoint {path!r} is corrupt or not a checkpoint: its header "
-                         f"declares {size:,} bytes (the file has {len(data):,})")  # fmt: skip
     try:
-        header = json.loads(data[8 : 8 + size])
-        if not isinstance(header, dict) or not isinstance(header.get("__metadata__"), dict):
-            raise UsageError(f"{path!r} is not a checkpoint written by the agent scripts")
-        metadata = Metadata.model_validate(header.pop("__metadata__"))
-        table = TENSOR_TABLE.validate_python(header)
-    except (ValueError, RecursionError, AttributeError, KeyError, TypeError) as e:
+        if size > min(MAX_HEADER, len(data) - 8):
+            raise ValueError(f"its header declares {size:,} bytes (the file has {len(data):,})")
+        header = Header.model_validate_json(data[8 : 8 + size])
+    except ValueError as e:  # (pydantic's ValidationError among them)
         raise UsageError(f"checkpoint {path!r} is corrupt or not a checkpoint: "
                          f"{problem_of(e)}") from None  # fmt: skip
-    head = data[: 8 + size]
-    if (
-        head.count(seal_field(metadata.sha256)) != 1
-        or metadata.sha256
-        != hashlib.sha256(
-            head.replace(seal_field(metadata.sha256), seal_field(SEAL)) + data[8 + size :]
-        ).hexdigest()
-    ):
+    seal = header.metadata.sha256  # (its place zeroed, as sealed() hashed it)
+    if seal != hashlib.sha256(data.replace(seal_field(seal), seal_field(SEAL), 1)).hexdigest():
         raise UsageError(f"checkpoint {path!r} is corrupt: its bytes do not match the SHA-256 "
                          "it was written with")  # fmt: skip
-    end = 0
-    for name, entry in sorted(table.items(), key=lambda item: item[1].data_offsets):
-        begin, stop = entry.data_offsets
-        if begin != end or stop - begin != math.prod(entry.shape) * DTYPES[entry.dtype].itemsize:
-            raise UsageError(f"checkpoint {path!r} is corrupt: {name} is not where its header "
-                             "puts it")  # fmt: skip
-        end = stop
-    if end != len(data) - 8 - size:
-        raise UsageError(f"checkpoint {path!r} is corrupt: its tensors do not fill its bytes")
     try:
-        document = Document.model_validate_json(metadata.a3c).model_dump()
+        document = Document.model_validate_json(header.metadata.a3c).model_dump()
     except ValidationError as e:
         raise UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}") from None
-    return document, table, data
+    return document, header.__pydantic_extra__, data
 
 
 def problem_of(error: Exception) -> str:
@@ -272,27 +256,43 @@ def problem_of(error: Exception) -> str:
     if isinstance(error, ValidationError):
         first = error.errors()[0]
         where = "/".join(str(part) for part in first["loc"])
-        return f"its {where or 'document'}: {first['msg'].split(' ' + chr(39) + '^')[0]}"
+        return (f"its {where}: " if where else "") + first["msg"].split(" '^")[0]
     return (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
 
 
 def read_tensors(data: bytes, document: dict, path: str) -> dict[str, Any]:
     """The tensors of a checkpoint's bytes (read_checkpoint's; their table already matched the
-    network's), checked (finite: NaN or inf is a run that diverged; mean squares not negative;
-    a worker's Catch games in a state they reach, a3c_runtime.catch_state), in the form the
-    runtime holds them: `model`, `optimizer`, `workers` (each worker's state as
-    a3c_runtime.snapshots.saved_state gives it) and `pending_evaluations`."""
+    network's), loaded by safetensors (which refuses bytes that are not where the table puts
+    them) and checked (finite: NaN or inf is a run that diverged; mean squares not negative; a
+    worker's Catch games in a state they reach, a3c_runtime.catch_state), in the form the
+    runtime holds them (runtime_form)."""
     import safetensors.torch
 
-    tensors = safetensors.torch.load(data)
+    try:
+        tensors = safetensors.torch.load(data)
+    except safetensors.SafetensorError as e:
+        raise UsageError(f"checkpoint {path!r} is corrupt: its tensors are not where its header "
+                         f"puts them ({problem_of(e)})") from None  # fmt: skip
+    squares = ("optimizer/square_avg/", "optimizer/exp_avg_sq/", "optimizer/step")
     for name, tensor in tensors.items():
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             part, shown = NOT_FINITE[name.split("/")[0]], name.removeprefix("model/")
             raise UsageError(f"checkpoint {path!r}: {part} (NaN or inf in {shown}: the run "
                              "diverged)")  # fmt: skip
-        squares = ("optimizer/square_avg/", "optimizer/exp_avg_sq/", "optimizer/step")
         if name.startswith(squares) and bool((tensor < 0).any()):
             raise UsageError(f"checkpoint {path!r}: its optimizer statistic {name} is negative")
+    for prefix in (f"workers/{k}" for k, worker in document["workers"].items() if worker["env"]):
+        arrays = {name: tensors[f"{prefix}/env/{name}"] for name in catch_layout()}
+        problem = catch_problem(arrays, tensors[f"{prefix}/frames"])
+        if problem is not None:
+            raise UsageError(f"checkpoint {path!r} is malformed: its {prefix}/{problem}")
+    return runtime_form(tensors, document)
+
+
+def runtime_form(tensors: dict[str, torch.Tensor], document: dict) -> dict[str, Any]:
+    """A checkpoint's tensors and document (read_tensors') in the form the runtime holds them:
+    `model`, `optimizer`, `workers` (each worker's state as a3c_runtime.snapshots.saved_state
+    gives it) and `pending_evaluations`: encode's flattening undone."""
     model = {n.removeprefix("model/"): t for n, t in tensors.items() if n.startswith("model/")}
     optimizer: dict[str, Any] = {}
     for name in sorted((n for n in tensors if n.startswith("optimizer/")), key=natural):
@@ -308,10 +308,6 @@ def read_tensors(data: bytes, document: dict, path: str) -> dict[str, Any]:
         prefix = f"workers/{worker_id}"
         env = None
         if worker["env"] is not None:  # the nested form catch_env's get_state gives
-            arrays = {name: tensors[f"{prefix}/env/{name}"] for name in catch_layout()}
-            problem = catch_problem(arrays, tensors[f"{prefix}/frames"])
-            if problem is not None:
-                raise UsageError(f"checkpoint {path!r} is malformed: its {prefix}/{problem}")
             env = {"env": {"rngs": [generator_state(s) for s in worker["env"]]}}
             for name in catch_layout():
                 *parents, last = f"env/{name}".split("/")

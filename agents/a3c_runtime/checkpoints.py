@@ -16,7 +16,8 @@ from typing import Any
 
 import torch
 import torch.nn as nn
-from pydantic import TypeAdapter, ValidationError
+from pydantic import ConfigDict, TypeAdapter, ValidationError
+from typing_extensions import TypedDict
 
 from .catch_state import catch_layout
 from .checkpoint_file import (  # noqa: F401  (the names callers import from here)
@@ -209,13 +210,13 @@ def for_agent(checkpoint: Checkpoint, agent: Any) -> Checkpoint:
         )
     trained = agent.trained_args(checkpoint)
     hints = typing.get_type_hints(agent.Args)
-    for name, value in trained.items():
-        if name in hints and not of_type(value, hints[name]):
-            kind = getattr(hints[name], "__name__", str(hints[name]))
-            raise UsageError(
-                f"checkpoint {path!r} is malformed: its --{name.replace('_', '-')} {value!r} is "
-                f"not {kind}"
-            )
+    try:
+        flags_type(agent.Args).validate_python({k: v for k, v in trained.items() if k in hints})
+    except ValidationError as e:
+        name = e.errors()[0]["loc"][0]
+        kind = getattr(hints[name], "__name__", str(hints[name]))
+        raise UsageError(f"checkpoint {path!r} is malformed: its --{name.replace('_', '-')} "
+                         f"{trained[name]!r} is not {kind}") from None  # fmt: skip
     known = {f.name for f in fields(agent.Args)}
     try:
         flags = agent.Args(**{k: v for k, v in trained.items() if k in known})
@@ -239,9 +240,7 @@ def expected_table(agent: Any, flags: Any, checkpoint: Checkpoint) -> dict[str, 
         with torch.device("meta"):
             network = agent.network(actions_of(agent.make_env, checkpoint.env), flags)
             carried = network.initial_state(envs) if hasattr(network, "initial_state") else ()
-    except UsageError as e:
-        raise UsageError(f"checkpoint {path!r}: {e}") from None
-    except (RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:
+    except (UsageError, RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:
         raise UsageError(
             f"checkpoint {path!r}: its flags build no network ({problem_of(e)})"
         ) from None
@@ -275,41 +274,29 @@ def actions_of(make_env: Any, env_id: str) -> int:
 
 
 def fit_problem(expected: dict[str, tuple], table: dict[str, Entry]) -> str | None:
-    """How the tensor table differs from the expected one, or None: the network's first, as
-    load_state_dict says it (a size mismatch, then the names missing and unexpected)."""
+    """How the tensor table differs from the expected one, or None: the first tensor that
+    differs, the network's first and a size mismatch before a name missing or unexpected (as
+    load_state_dict says it)."""
     have = {name: (entry.dtype, tuple(entry.shape)) for name, entry in table.items()}
-    for part in ("model/", ""):
-        want = {n: v for n, v in expected.items() if n.startswith(part)}
-        got = {n: v for n, v in have.items() if n.startswith(part)}
-        for name in want:
-            if name in got and got[name] != want[name]:
-                shown = name.removeprefix("model/")
-                return f": size mismatch for {shown}: {got[name]} in it, {want[name]} here"
-        problems = []
-        for kind, names in (("missing", [n for n in want if n not in got]),
-                            ("unexpected", [n for n in got if n not in want])):  # fmt: skip
-            names = [name.removeprefix("model/") for name in names]
-            if names:
-                more = " ..." if len(names) > 4 else ""
-                problems.append(f"{kind}: {', '.join(names[:4])}{more}")
-        if problems:
-            return " (is it another script's?): " + "; ".join(problems)
-    return None
-
-
-def of_type(value: Any, hint: Any) -> bool:
-    """Whether value is of the type a flag's annotation names (bool, int, float, str, None,
-    a Literal, a union of them; Annotated's metadata aside), as pydantic's strict mode says."""
-    try:
-        flag_type(hint).validate_python(value, strict=True)
-    except ValidationError:
-        return False
-    return True
+    names = [*expected, *(name for name in have if name not in expected)]
+    differ = [name for name in names if expected.get(name) != have.get(name)]
+    if not differ:
+        return None
+    both = expected.keys() & have.keys()
+    name = min(differ, key=lambda n: (not n.startswith("model/"), n not in both))
+    shown = name.removeprefix("model/")
+    if name in both:
+        return f": size mismatch for {shown}: {have[name]} in it, {expected[name]} here"
+    return f" (is it another script's?): {'missing' if name in expected else 'unexpected'}: {shown}"
 
 
 @functools.cache
-def flag_type(hint: Any) -> TypeAdapter:
-    return TypeAdapter(hint)
+def flags_type(args: type) -> TypeAdapter:
+    """A script's flags by name, each of its annotation's type (Annotated's metadata aside), as
+    pydantic's strict mode checks them: a TypedDict of the Args' annotations."""
+    flags = TypedDict(args.__name__, typing.get_type_hints(args), total=False)
+    flags.__pydantic_config__ = ConfigDict(strict=True)
+    return TypeAdapter(flags)
 
 
 def moved_script(checkpoint: Checkpoint) -> tuple[str, str, Any] | None:

@@ -152,7 +152,7 @@ def convert(path: str, out: str) -> str:
     try:
         new = encode(converted(old))
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError,
-            RecursionError, pickle.UnpicklingError) as e:  # fmt: skip
+            RecursionError, RuntimeError, pickle.UnpicklingError) as e:  # fmt: skip
         raise UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}") from None
     checked_by_its_script(open_checkpoint(path, data=new))  # what is written passes the gate
     try:
