@@ -207,17 +207,20 @@ def test_the_fault_injection_knows_every_closing_hint(tmp_path, monkeypatch):
 
 
 def test_batched_throughput_reports_each_batch(monkeypatch, capsys):
-    """A batch of 2 runs for half a second (CPU), no process backend."""
+    """A batch of 2 runs for half a second (CPU), each convolution form, no process backend."""
     result = run(
         "batched_throughput.py",
         *("--runs", "2", "--seconds", "0.5", "--process-runs", "0"),
+        *("--conv-form", "grouped", "matmul"),
         monkeypatch=monkeypatch,
         capsys=capsys,
     )
     assert result.returncode == 0, result.stderr
     assert "process backend" not in result.stdout
-    assert re.search(r"batched N=2: [\d,]+ run-steps/s; one evaluation \(N x 50 episodes\) "
-                     r"[\d.]+ s; .* thesis-scale line .* [\d.]+ min", result.stdout)  # fmt: skip
+    for form in ("grouped", "matmul"):
+        assert re.search(rf"batched N=2 \({form} convolutions\): [\d,]+ run-steps/s, [\d.]+ ms an "
+                         r"update; one evaluation \(N x 50 episodes\) [\d.]+ s; .* thesis-scale "
+                         r"line .* [\d.]+ min", result.stdout)  # fmt: skip
 
 
 @pytest.mark.slow
@@ -232,7 +235,8 @@ def test_batched_throughput_reports_each_batch_against_the_process_backend(monke
     assert result.returncode == 0, result.stderr
     assert re.search(r"process backend: 1 one-worker runs side by side: [\d,]+ run-steps/s",
                      result.stdout)  # fmt: skip
-    assert re.search(r"batched N=2: [\d,]+ run-steps/s = [\d.]+x the process backend",
+    assert re.search(r"batched N=2 \(grouped convolutions\): [\d,]+ run-steps/s = [\d.]+x the "
+                     r"process backend",
                      result.stdout)  # fmt: skip
 
 
