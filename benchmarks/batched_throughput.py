@@ -3,7 +3,7 @@
 agents/a3c_ff.py side by side, one core each).
 
     python benchmarks/batched_throughput.py [--device cpu|cuda] [--runs 50 64 256 1024]
-        [--conv-form auto grouped matmul] [--seconds 20] [--process-runs W]
+        [--conv-form grouped [matmul]] [--seconds 20] [--process-runs W]
         [--process-seconds 40] [--t-max 20] [--out FILE]
 
 For each N of --runs it builds a batch of N runs (run i: seed 1 + 1000 i, a learning rate
@@ -60,7 +60,7 @@ def sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def batch_of(module, n: int, device: str, t_max: int, conv_form: str = "auto") -> BatchedA3C:
+def batch_of(module, n: int, device: str, t_max: int, conv_form: str = "grouped") -> BatchedA3C:
     runs = []
     for i in range(n):
         lr = math.exp(math.log(1e-4) + (i + 0.5) / n * (math.log(1e-2) - math.log(1e-4)))
@@ -71,7 +71,7 @@ def batch_of(module, n: int, device: str, t_max: int, conv_form: str = "auto") -
 
 
 def measure_batch(
-    module, n: int, device: str, seconds: float, t_max: int, conv_form: str = "auto"
+    module, n: int, device: str, seconds: float, t_max: int, conv_form: str = "grouped"
 ) -> dict:
     """run-steps/s of a batch of n runs over `seconds`, the ms of an update, and one
     evaluation's seconds."""
@@ -161,7 +161,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
     parser.add_argument("--runs", type=int, nargs="+", default=[50, 64, 256, 1024])
-    parser.add_argument("--conv-form", nargs="+", choices=CONV_FORMS, default=["auto"])
+    parser.add_argument("--conv-form", nargs="+", choices=CONV_FORMS, default=["grouped"])
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--process-runs", type=int, default=None)
     parser.add_argument("--process-seconds", type=float, default=40.0)

@@ -232,7 +232,7 @@ BATCH_FLAGS = [
             pytest.param("a3c_ff", flags, 10, "grouped", marks=pytest.mark.slow)
             for flags in BATCH_FLAGS[1:]
         ),  # fmt: skip
-        # the convolutions as matmuls (a GPU's default): FF, LSTM and LWS's locally shared layers
+        # the convolutions as matmuls (conv_form's option): FF, LSTM and LWS's locally shared layers
         # here, the other networks (FF's convolutions in other heads) in the slow tier
         ("a3c_ff", BATCH_FLAGS[0], UPDATES, "matmul"),
         ("a3c_lstm", {"t_max": 7}, 9, "matmul"),

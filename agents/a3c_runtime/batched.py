@@ -53,10 +53,10 @@ from .stacked_convs import matmul_convs
 UNIFORM_BLOCK = 256  # action uniforms drawn per run at a time
 FILES_PER_RUN = 4  # held open by a batch: the folder's lock, evaluations.csv, events, stdout.log
 # how the stacked runs' convolutions are computed: "grouped", torch's convolution under vmap (a
-# grouped convolution, the runs its groups); "matmul", a3c_runtime.stacked_convs (one bmm for all
-# runs, where cuDNN runs a grouped convolution as a kernel per run); "auto": matmul on a GPU,
-# grouped on the CPU, where matmul measured no faster (results/batched_throughput)
-CONV_FORMS = ("auto", "grouped", "matmul")
+# grouped convolution, the runs its groups), the default; "matmul", a3c_runtime.stacked_convs
+# (one bmm for all runs, where cuDNN runs a grouped convolution as a kernel per run), slower on
+# the CPU and unmeasured on a GPU (results/batched_throughput): an option until it earns its place
+CONV_FORMS = ("grouped", "matmul")
 
 
 def network_frames(frames: torch.Tensor) -> torch.Tensor:
@@ -112,7 +112,7 @@ class BatchedA3C:
         module: ModuleType,
         runs: list[BatchedRun],
         device: str | torch.device,
-        conv_form: str = "auto",
+        conv_form: str = "grouped",
     ):
         self.module, self.agent, self.device = module, module.AGENT, torch.device(device)
         if conv_form not in CONV_FORMS:
@@ -148,9 +148,7 @@ class BatchedA3C:
         self.cpu_model = models[0]  # the checkpoints' network
         self.base = copy.deepcopy(models[0]).to(self.device)  # called with each run's weights
         self.conv_form = conv_form
-        if conv_form == "auto":
-            self.conv_form = "matmul" if self.device.type == "cuda" else "grouped"
-        if self.conv_form == "matmul":
+        if conv_form == "matmul":
             matmul_convs(self.base)
         # each run's --learning-rate, in float64 as annealed_lr computes with it
         self.learning_rates = torch.tensor([args.learning_rate for args in self.args],
