@@ -232,15 +232,12 @@ BATCH_FLAGS = [
             pytest.param("a3c_ff", flags, 10, "grouped", marks=pytest.mark.slow)
             for flags in BATCH_FLAGS[1:]
         ),  # fmt: skip
-        # the convolutions as matmuls (conv_form's option): FF, LSTM and LWS's locally shared layers
-        # here, the other networks (FF's convolutions in other heads) in the slow tier
+        # the convolutions as matmuls (conv_form's option): FF, LSTM and LWS's locally shared
+        # layers (the other networks' convolutions are FF's: tests/test_stacked_convs.py checks
+        # each network's forward with them)
         ("a3c_ff", BATCH_FLAGS[0], UPDATES, "matmul"),
         ("a3c_lstm", {"t_max": 7}, 9, "matmul"),
         ("a3c_lws", {**BATCH_FLAGS[0], **LWS_AS_RUN}, 10, "matmul"),
-        *(
-            pytest.param(name, BATCH_FLAGS[0], 10, "matmul", marks=pytest.mark.slow)
-            for name in OTHER_NETWORKS
-        ),  # fmt: skip
     ],
 )
 def test_each_update_of_run_i_is_the_scripts_update_from_its_state(
