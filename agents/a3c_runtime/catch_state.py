@@ -11,12 +11,10 @@ import torch
 
 
 @functools.cache
-def catch_layout() -> dict[str, tuple[str, tuple[int, ...]]]:
+def catch_layout() -> dict[str, tuple[torch.dtype, tuple[int, ...]]]:
     """The arrays of a Catch vector env's state (catch_env.wrappers' get_state, its generators
     apart) by path, with their dtypes and their shapes after the leading one (the env count)."""
     from catch_env.wrappers import make_vector_env
-
-    from .checkpoint_file import DTYPE_NAMES
 
     envs = make_vector_env("Catch-v0", 1)
     envs.reset(seed=0)
@@ -28,7 +26,7 @@ def catch_layout() -> dict[str, tuple[str, tuple[int, ...]]]:
         elif isinstance(value, list):
             todo += [(f"{path}{i}/", v) for i, v in enumerate(value)]
         else:
-            layout[path[:-1]] = (DTYPE_NAMES[torch.from_numpy(value).dtype], value.shape[1:])
+            layout[path[:-1]] = (torch.from_numpy(value).dtype, value.shape[1:])
     return dict(sorted(layout.items()))
 
 

@@ -263,7 +263,7 @@ def expected_table(agent: Any, flags: Any, checkpoint: Checkpoint) -> dict[str, 
             if len(worker["env"]) != envs or is_atari(checkpoint.env):
                 raise UsageError(f"checkpoint {path!r} is malformed: worker {worker_id}'s env "
                                  f"state is not that of {envs} Catch envs")  # fmt: skip
-            table.update({f"{prefix}/env/{name}": (dtype, (envs, *shape))
+            table.update({f"{prefix}/env/{name}": (DTYPE_NAMES[dtype], (envs, *shape))
                           for name, (dtype, shape) in catch_layout().items()})  # fmt: skip
     return table
 
