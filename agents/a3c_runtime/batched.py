@@ -259,10 +259,10 @@ class BatchedA3C:
                     break
             n = t + 1
             bootstrap = torch.zeros(n_runs, dtype=torch.float32, device=self.device)
-            if not ended.any():  # V(s_n), as the worker's learning pass computes it
+            if not ended.any():  # V(s_n), as the worker's learning pass computes it (its autocast)
                 bootstrap = self.act(
                     network_frames(frames[n][:, None]), self.state, self.learn_precision
-                )[1][:, 0]  # (as the worker's learning pass computes it: its autocast)
+                )[1][:, 0]
         # the script's returns, on the device (Catch never truncates: no done values)
         done_values = torch.zeros((n, n_runs), dtype=torch.float32, device=self.device)
         returns = self.module.n_step_returns(

@@ -27,8 +27,10 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
 - `campaign`: a fixed plan of sweeps run in its order over sessions, resumable, with its
   progress (results/campaign/plan.toml).
 
-`batched` is the sweep's side of the batched backend (`--backend batched`: which runs it can
-batch, and the sweep's runs as batches of the runtime's a3c_runtime.batched, docs/reproducing.md).
+`batched` is the sweep's side of the batched backend (`--backend batched`: its runs checked
+before anything runs, and the sweep's runs as batches of the runtime's a3c_runtime.batched,
+docs/reproducing.md). Shared by the tools: `read_toml` (their data files, one line on a bad
+one) and `parsed_flags` (a script's flags, tyro's error on one line).
 
 Nothing runs at import; the tools' own dependencies (matplotlib, scipy, rliable) are the `tools`
 extra.
