@@ -14,14 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from torch.func import functional_call, grad, stack_module_state, vmap
 
-
-@pytest.fixture(autouse=True, scope="module")
-def one_torch_thread():
-    """One thread, as a worker's torch: small ops on a shared 2-core machine run fastest so."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # (conftest's: a worker's one thread)
 
 
 def converted(conv: nn.Conv2d) -> nn.Conv2d:
