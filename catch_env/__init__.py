@@ -9,12 +9,13 @@ import gymnasium as gym
 
 from catch_env.catch import ACTION_MEANINGS, CatchEnv, CatchRules, CatchVectorEnv
 
-__all__ = ["ACTION_MEANINGS", "CatchEnv", "CatchRules", "CatchVectorEnv"]
+__all__ = ["ACTION_MEANINGS", "CATCH_ENTRY_POINT", "CatchEnv", "CatchRules", "CatchVectorEnv"]
 __version__ = "0.1.0"
+CATCH_ENTRY_POINT = "catch_env.catch:CatchEnv"
 
 if "Catch-v0" not in gym.registry:
     gym.register(
         id="Catch-v0",
-        entry_point="catch_env.catch:CatchEnv",
+        entry_point=CATCH_ENTRY_POINT,
         vector_entry_point="catch_env.catch:CatchVectorEnv",
     )

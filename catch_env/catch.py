@@ -32,6 +32,7 @@ MAX_BALL_SPEED = 2
 OBS_SIZE = 84
 OBS_TYPES = ("pixels", "grid")
 ON, OFF = 255, 0
+START_BUFFER = 64  # start states a vector env draws per game at a time (its default)
 
 _VALID_ACTIONS = ", ".join(f"{i} {name}" for i, name in enumerate(ACTION_MEANINGS))
 # What CatchVectorEnv holds per env, in frames (measured with tracemalloc): the batched
@@ -415,7 +416,7 @@ class CatchVectorEnv(VectorEnv):
         obs_type: Literal["pixels", "grid"] = "pixels",
         render_mode: str | None = None,
         copy: bool = True,
-        start_buffer: int = 64,
+        start_buffer: int = START_BUFFER,
     ) -> None:
         self.num_envs = _check_int("num_envs", num_envs, 1, 2**24)
         self.rules = CatchRules(grid_size, paddle_width, paddle_speed, obs_type)
@@ -472,37 +473,33 @@ class CatchVectorEnv(VectorEnv):
 
     def get_state(self) -> dict[str, Any]:
         """Everything a step depends on that the constructor does not fix, as NumPy arrays and
-        each generator's `bit_generator.state` (plain numbers): a copy, for `set_state`."""
+        each generator's `bit_generator.state` (plain numbers): a copy, for `set_state`. The
+        canvas is not in it: `set_state` draws it from the balls and paddles."""
         if self._drawn is None:
             raise RuntimeError("Cannot get the state before reset(): call reset() first.")
         arrays = {name: getattr(self, name).copy() for name in self._STATE_ARRAYS}
-        return {
-            **arrays,
-            "drawn": [drawn.copy() for drawn in self._drawn],
-            "rngs": [rng.bit_generator.state for rng in self._rngs],
-        }
+        return {**arrays, "rngs": [rng.bit_generator.state for rng in self._rngs]}
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Go on from `get_state()`'s copy, taken from an env made with the same arguments; a
         state of another shape is a ValueError and leaves this env as it was."""
         arrays = {name: np.asarray(state[name]) for name in self._STATE_ARRAYS}
-        drawn = [np.asarray(d) for d in state["drawn"]]
         for name, array in arrays.items():
             own = getattr(self, name)
             if array.shape != own.shape:
                 raise ValueError(f"state {name!r} has shape {array.shape}, not {own.shape}")
-        if len(state["rngs"]) != self.num_envs or len(drawn) != 2:
+        if len(state["rngs"]) != self.num_envs:
             raise ValueError(f"state is not that of {self.num_envs} envs")
         rngs = [np.random.Generator(np.random.PCG64()) for _ in range(self.num_envs)]
         for rng, rng_state in zip(rngs, state["rngs"], strict=True):
             rng.bit_generator.state = rng_state
         for name, array in arrays.items():
             setattr(self, name, array.astype(getattr(self, name).dtype, copy=True))
-        self._drawn = tuple(d.astype(np.int64, copy=True) for d in drawn)
         self._rngs = rngs
+        self._redraw()
 
-    _STATE_ARRAYS = ("_obs", "ball_row", "ball_col", "ball_vx", "paddle", "_needs_reset",
-                     "_starts", "_starts_used")  # fmt: skip
+    _STATE_ARRAYS = ("ball_row", "ball_col", "ball_vx", "paddle", "_needs_reset", "_starts",
+                     "_starts_used")  # fmt: skip
 
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None

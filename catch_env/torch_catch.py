@@ -38,11 +38,10 @@ from catch_env.catch import (
     BALL_START_ROW,
     MAX_BALL_SPEED,
     OBS_SIZE,
+    START_BUFFER,
     CatchRules,
     vector_seeds,
 )
-
-START_BUFFER = 64  # start states drawn per game at a time, as CatchVectorEnv's default
 
 
 class TorchCatchVectorEnv:
@@ -169,25 +168,17 @@ class TorchCatchVectorEnv:
         """Game `env` as `make_vector_env("Catch-v0", 1).get_state()` holds it (a
         FrameStackVectorEnv over a one-game CatchVectorEnv): a checkpoint that carries it
         resumes in the script's own loop, and `set_numpy_state` reads it back."""
-        rules, side = self.rules, OBS_SIZE
-        row, col, paddle = (int(self.ball_row[env]), int(self.ball_col[env]),
-                            int(self.paddle[env]))  # fmt: skip
         stack = self.stack[env].cpu().numpy()
-        drawn = [rules.ball_sprite[row * rules.grid_size + col][None].astype(np.int64),
-                 rules.paddle_sprite[paddle][None].astype(np.int64)]  # fmt: skip
         inner = {
-            "_obs": stack[-1][None].copy(),
-            "ball_row": np.array([row]),
-            "ball_col": np.array([col]),
+            "ball_row": np.array([int(self.ball_row[env])]),
+            "ball_col": np.array([int(self.ball_col[env])]),
             "ball_vx": np.array([int(self.ball_vx[env])]),
-            "paddle": np.array([paddle]),
+            "paddle": np.array([int(self.paddle[env])]),
             "_needs_reset": np.zeros(1, dtype=bool),  # (the wrapper resets an ended game at once)
             "_starts": self._starts[env][None].copy(),
             "_starts_used": self._starts_used[env : env + 1].copy(),
-            "drawn": drawn,
             "rngs": [self._rngs[env].bit_generator.state],
         }
-        assert inner["_obs"].shape == (1, side, side)
         return {
             "stack": stack[None].copy(),
             "returns": np.array([float(self.episode_returns[env])]),

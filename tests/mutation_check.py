@@ -401,11 +401,23 @@ MUTANTS = [
            "kernels part from a batch of two's in the last bits", BATCHED_BACKEND,
            "        if len(runs) == 1:\n", "        if len(runs) == 0:\n",
            ("tests/test_batched_invariance.py", BATCH_T)),
-    Mutant("checkpoint-catch-values-unchecked", "a checkpoint's Catch games pass with any value "
-           "(a ball off the board reaches the env)", ("agents/a3c_runtime/catch_state.py",),
-           "outside = (state[name] < low) | (state[name] > high)",
-           "outside = (state[name] < low) & (state[name] > high)",
+    Mutant("checkpoint-catch-values-unchecked", "a checkpoint's Catch ball may sit one column "
+           "right of the board (it reaches the env)", ("agents/a3c_runtime/catch_state.py",),
+           "ball_col: per_env(0, RULES.grid_size - 1)", "ball_col: per_env(0, RULES.grid_size)",
            ("tests/test_checkpoint_env_state.py",)),
+    Mutant("checkpoint-newest-frame-not-drawn", "a checkpoint's Catch stacks load with a blank "
+           "newest frame (the canvas is not drawn from the positions)",
+           ("agents/a3c_runtime/catch_state.py",), ".scatter_(1, drawn, 255)",
+           ".scatter_(1, drawn, 0)", ("tests/test_checkpoint_env_state.py",)),
+    Mutant("checkpoint-generator-increment-short", "a checkpoint's generator loads with its "
+           "increment's top byte lost", ("agents/a3c_runtime/catch_state.py",),
+           '"inc": word(data[16:32])}', '"inc": word(data[16:31])}',
+           ("tests/test_checkpoint_env_state.py",)),
+    Mutant("convert-moved-flag-kept", "a thesis script's checkpoint with a chapter-8 flag set "
+           "converts as the thesis script's, which cannot play it",
+           ("agents/a3c_tools/convert_checkpoint.py",), 'MOVED_FLAGS.get(fields["script"], {})',
+           'MOVED_FLAGS.get(fields["script"][1:], {})',
+           ("tests/test_checkpoint_env_state.py", "tests/test_future_work.py")),
     # --- the sweep: run i's seed and sampled flags -----------------------------------------------
     Mutant("sweep-restarts-cut-off-run", "a sweep started again runs a cut-off run from its "
            "start, not on from its checkpoint", SWEEP,
@@ -642,8 +654,9 @@ MUTANTS = [
            "if name.startswith(squares) and bool((tensor < -1).any()):",
            ("tests/test_safe_loading.py",)),
     Mutant("checkpoint-lstm-cells-unbounded", "a checkpoint's --lstm-cells 10**9 passes the "
-           "gate's bounds", CHECKPOINTS, '    "lstm_cells": (1, 16_384),',
-           '    "lstm_cells": (1, 10**12),', ("tests/test_safe_loading.py",)),
+           "gate's bounds", ("agents/a3c_runtime/checkpoint_file.py",),
+           "lstm_cells: within(1, 16_384) = None", "lstm_cells: within(1, 10**12) = None",
+           ("tests/test_safe_loading.py",)),
     Mutant("batched-learning-rate-not-annealed", "the batch's learning rates stay at their "
            "initial values (--anneal-lr ignored)", BATCHED_BACKEND,
            "factor = annealed_lr(dataclasses.replace(a, learning_rate=1.0), self.step_count)",

@@ -408,12 +408,15 @@ def test_online_centroids_depend_on_the_input_and_learn(lws, online_lws):
 def test_a_checkpoint_of_an_old_flag_belongs_to_its_script(
     tmp_path, monkeypatch, capsys, thesis, flag, value, owner
 ):
-    """A checkpoint the thesis script wrote when the idea was its flag: the thesis script
-    refuses it with one line naming the idea's script, which plays it."""
+    """A checkpoint the thesis script wrote when the idea was its flag (the older format, a
+    torch zip): converted, it is the idea's script's, which plays it; the thesis script refuses
+    it with one line naming that script."""
     from dataclasses import asdict
 
     import a3c_runtime
-    from conftest import rewrite_checkpoint, shared_for, tiny_args
+    from a3c_tools import convert_checkpoint
+    from conftest import run_main, shared_for, tiny_args
+    from test_safe_loading import old_checkpoint
 
     module = load_script(owner)
     args = tiny_args(module)
@@ -421,16 +424,15 @@ def test_a_checkpoint_of_an_old_flag_belongs_to_its_script(
     a3c_runtime.save_checkpoint(path, shared_for(module, args), args, 0.0, f"{thesis}.py")
     checkpoint = read_checkpoint(path)
     checkpoint["args"] = {**asdict(args), flag: value}  # as the old script stored its flags
-    rewrite_checkpoint(path, checkpoint)
+    old_checkpoint(path, checkpoint)
+    result = run_main(convert_checkpoint.main, [str(path)])
+    assert result.returncode == 0, result.stderr
+    assert read_checkpoint(path)["script"] == f"future_work/{owner}.py"
     code, err = main_exit(load_script(thesis), ["--evaluate", str(path)], monkeypatch, capsys)
     assert code == 2 and err.count("\n") == 1
     assert f"use python agents/future_work/{owner}.py" in err
     loaded = a3c_runtime.load_checkpoint(str(path), module.AGENT)
     a3c_runtime.load_network(module.AGENT.build_network(3, args), loaded, str(path))
-    new = tmp_path / "new.pt"  # and one the idea's script writes names it too
-    a3c_runtime.save_checkpoint(new, shared_for(module, args), args, 0.0, module.AGENT.script)
-    code, err = main_exit(load_script(thesis), ["--evaluate", str(new)], monkeypatch, capsys)
-    assert code == 2 and f"python agents/future_work/{owner}.py" in err
 
 
 @pytest.mark.slow

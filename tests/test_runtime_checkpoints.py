@@ -48,7 +48,7 @@ def checkpoint_round_trip(module, name, folder: Path, optimizer: str):
     runtime.save_checkpoint(path, shared, args, wall_time=12.0, script=f"{name}.py")
     checkpoint = runtime.load_checkpoint(str(path), module.AGENT)
     assert checkpoint.global_step == 1234 and checkpoint.wall_time == 12.0
-    assert checkpoint.script == f"{name}.py" and checkpoint.optimizer_name == optimizer
+    assert checkpoint.script == f"{name}.py" and checkpoint.flags.optimizer == optimizer
     torch.manual_seed(123)  # another initial network
     fresh = shared_for(module, args)
     runtime.restore(fresh, checkpoint, args, str(path), module.AGENT)
@@ -146,7 +146,7 @@ def test_evaluating_an_old_checkpoint_of_another_network_is_a_usage_error(ff_che
     # no script name to refuse it by: the tensors of another shape give the one-line message
     _, old = ff_checkpoints
     module = load_script("a3c_ss")
-    with pytest.raises(runtime.UsageError, match="does not fit this network: size mismatch"):
+    with pytest.raises(runtime.UsageError, match="does not fit this network: model/"):
         runtime.evaluate(module.AGENT, module.Args(evaluate=str(old), eval_episodes=1))
 
 

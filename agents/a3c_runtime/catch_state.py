@@ -1,81 +1,95 @@
-"""A worker's Catch games in a checkpoint: the arrays of their state (catch_env's vector env
-under its frame stacks, `get_state()`, its generators apart) by flat name, with their dtypes and
-shapes (`catch_layout`), and the values those arrays take between two steps (`catch_problem`):
-a hand-edited ball off the board, a start draw of 2 or a canvas that is not the games' is
-refused (a3c_runtime.checkpoint_file, before anything reaches an env)."""
+"""A worker's Catch games in a checkpoint (catch_env's vector env under its frame stacks, as
+`get_state()` gives it): their positions, episode sums and generators in the document, typed
+and bounded by `CatchGames` (a ball off the board or a start draw used past the buffer is no
+state the games reach, and the schema refuses it); the start draws and the stacks' older frames
+(as bits: a pixel is on or off) as tensors. The canvas and each stack's newest frame are not
+stored: they are drawn from the positions on load, so a file cannot make them disagree."""
 
 import functools
-from typing import Any
+from typing import Annotated, Any
 
 import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from catch_env.catch import BALL_START_ROW, MAX_BALL_SPEED, START_BUFFER, CatchRules
+
+MAX_ENVS = 4096
+RULES = CatchRules()  # the games the scripts make
+LAST = RULES.episode_length - 1  # an ended game starts again in the same step
 
 
-@functools.cache
-def catch_layout() -> dict[str, tuple[torch.dtype, tuple[int, ...]]]:
-    """The arrays of a Catch vector env's state (catch_env.wrappers' get_state, its generators
-    apart) by path, with their dtypes and their shapes after the leading one (the env count)."""
-    from catch_env.wrappers import make_vector_env
-
-    envs = make_vector_env("Catch-v0", 1)
-    envs.reset(seed=0)
-    layout, todo = {}, [("", envs.get_state())]
-    while todo:
-        path, value = todo.pop()
-        if isinstance(value, dict):
-            todo += [(f"{path}{k}/", v) for k, v in value.items() if k != "rngs"]
-        elif isinstance(value, list):
-            todo += [(f"{path}{i}/", v) for i, v in enumerate(value)]
-        else:
-            layout[path[:-1]] = (torch.from_numpy(value).dtype, value.shape[1:])
-    return dict(sorted(layout.items()))
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
 
 
-def part_at(state: dict, path: str) -> Any:
-    """The array at a catch_layout path of a state in get_state's nested form."""
-    for key in path.split("/"):
-        state = state[int(key) if isinstance(state, list) else key]
-    return state
+PCG64_BYTES = 37  # its 128-bit state and increment, has_uint32 (a byte), uinteger (4 bytes)
 
 
-@functools.cache
-def catch_rules() -> tuple[Any, dict[str, tuple[float, float]], tuple[torch.Tensor, ...]]:
-    """The rules of the Catch games the scripts make, the inclusive bounds of their arrays
-    between two steps (an ended game starts again in the same step; start draws in [0, 1)), and
-    the canvas cells of a ball at each cell and of a paddle at each column."""
-    from catch_env.catch import BALL_START_ROW, MAX_BALL_SPEED, CatchRules
-
-    rules, last = CatchRules(), CatchRules().episode_length - 1
-    bounds = {"env/ball_row": (BALL_START_ROW, BALL_START_ROW + last), "lengths": (0, last),
-              "env/ball_col": (0, rules.grid_size - 1), "env/paddle": (rules.paddle_min,
-              rules.paddle_max), "env/ball_vx": (-MAX_BALL_SPEED, MAX_BALL_SPEED),
-              "env/_needs_reset": (0, 0), "returns": (0, 1), "env/_starts": (0, 1 - 2**-53),
-              "env/_starts_used": (0, catch_layout()["env/_starts"][1][0])}  # fmt: skip
-    return rules, bounds, (torch.tensor(rules.ball_sprite), torch.tensor(rules.paddle_sprite))
+def per_env(low: float, high: float, kind: type = int) -> Any:
+    """A list of one value per env, each within [low, high]."""
+    return Annotated[list[Annotated[kind, Field(ge=low, le=high)]], Field(max_length=MAX_ENVS)]
 
 
-def catch_problem(state: dict[str, torch.Tensor], frames: torch.Tensor) -> str | None:
-    """What of a worker's Catch games (their arrays by catch_layout's names, of its dtypes and
-    shapes) is no state they reach between steps, or None: each value within its bounds, the
-    canvas, the cells drawn on it and the last frame of each stack those of the games'
-    positions, the stacks' pixels 0 or 255, and the frames the worker acts on its stacks."""
-    rules, bounds, (ball, paddle) = catch_rules()
-    for name, (low, high) in bounds.items():
-        outside = (state[name] < low) | (state[name] > high)
-        if bool(outside.any()):
-            value = state[name][outside][0].item()
-            return f"{name} holds {value} (valid: {low:g} to {high:.3g})"
-    n, side = len(frames), rules.obs_side
-    base = torch.arange(n)[:, None] * side * side
-    cell = state["env/ball_row"] * rules.grid_size + state["env/ball_col"]
-    drawn = (ball[cell] + base, paddle[state["env/paddle"]] + base)
-    canvas = torch.zeros(n * side * side, dtype=torch.uint8)
-    canvas[torch.cat([d.flatten() for d in drawn])] = 255
-    if not all(torch.equal(state[f"env/drawn/{i}"], drawn[i]) for i in range(2)):
-        return "env/drawn is not the cells of the balls and paddles"
-    if not torch.equal(state["env/_obs"], canvas.view(n, side, side)):
-        return "env/_obs is not the canvas of the balls and paddles"
-    if not torch.equal(state["stack"][:, -1], state["env/_obs"]):
-        return "stack's last frames are not the canvas"
-    if not bool(((state["stack"] == 0) | (state["stack"] == 255)).all()):
-        return "stack holds a pixel that is neither 0 nor 255"
-    return None if torch.equal(frames, state["stack"]) else "frames are not the envs' stacks"
+class CatchGames(Strict):
+    """A worker's Catch games between two steps, one value per env (none awaits a reset)."""
+
+    ball_row: per_env(BALL_START_ROW, BALL_START_ROW + LAST)
+    ball_col: per_env(0, RULES.grid_size - 1)
+    ball_vx: per_env(-MAX_BALL_SPEED, MAX_BALL_SPEED)
+    paddle: per_env(RULES.paddle_min, RULES.paddle_max)
+    starts_used: per_env(0, START_BUFFER)  # (the starts tensor's rows used)
+    lengths: per_env(0, LAST)
+    returns: per_env(0, 1, float)
+
+
+POSITIONS = ("ball_row", "ball_col", "ball_vx", "paddle")
+
+
+def generator_bytes(state: dict) -> torch.Tensor:
+    """A NumPy PCG64 generator's `bit_generator.state` as a checkpoint holds it: PCG64_BYTES
+    bytes, little-endian, every value of which is a PCG64 state (so none needs a check).
+    ValueError (OverflowError) for another generator or a state no PCG64 has."""
+    if state["bit_generator"] != "PCG64":
+        raise ValueError(f"a {state['bit_generator']} generator is not a PCG64 one")
+    words = state["state"]
+    data = (words["state"].to_bytes(16, "little") + words["inc"].to_bytes(16, "little")
+            + bytes([state["has_uint32"]]) + state["uinteger"].to_bytes(4, "little"))  # fmt: skip
+    return torch.frombuffer(bytearray(data), dtype=torch.uint8)
+
+
+def generator_state(stored: torch.Tensor) -> dict:
+    """generator_bytes reversed: NumPy's `bit_generator.state`."""
+    data = bytes(stored.tolist())
+    word = functools.partial(int.from_bytes, byteorder="little")
+    return {"bit_generator": "PCG64", "state": {"state": word(data[:16]), "inc": word(data[16:32])},
+            "has_uint32": data[32] & 1, "uinteger": word(data[33:])}  # fmt: skip
+
+
+def stored_games(state: dict, frames: torch.Tensor) -> tuple[dict, dict[str, torch.Tensor]]:
+    """(the document's CatchGames, the tensors by name) of a worker's Catch envs' `get_state()`
+    (as tensors) and the frames it acts on (its envs' stacks)."""
+    inner = state["env"]
+    games = {**{name: inner[name].tolist() for name in POSITIONS},
+             "starts_used": inner["_starts_used"].tolist(), "lengths": state["lengths"].tolist(),
+             "returns": state["returns"].tolist()}  # fmt: skip
+    generators = torch.stack([generator_bytes(state) for state in inner["rngs"]])
+    return games, {"starts": inner["_starts"], "frames": frames[:, :-1] == 255,
+                   "generators": generators}  # fmt: skip
+
+
+def loaded_games(games: dict, tensors: dict[str, torch.Tensor]) -> tuple[dict, torch.Tensor]:
+    """stored_games reversed: (the envs' `get_state()`, the frames), the canvas and each stack's
+    newest frame drawn from the balls and paddles as the env draws them."""
+    n, side = len(games["ball_row"]), RULES.obs_side
+    cells = torch.tensor(games["ball_row"]) * RULES.grid_size + torch.tensor(games["ball_col"])
+    ball, paddle = torch.tensor(RULES.ball_sprite), torch.tensor(RULES.paddle_sprite)
+    drawn = torch.cat([ball[cells], paddle[torch.tensor(games["paddle"])]], 1)
+    newest = torch.zeros(n, side * side, dtype=torch.uint8).scatter_(1, drawn, 255)
+    frames = torch.cat([tensors["frames"].to(torch.uint8) * 255, newest.view(n, 1, side, side)], 1)
+    inner = {name: torch.tensor(games[name]) for name in POSITIONS}
+    inner.update(_needs_reset=torch.zeros(n, dtype=torch.bool), _starts=tensors["starts"],
+                 _starts_used=torch.tensor(games["starts_used"]),
+                 rngs=[generator_state(s) for s in tensors["generators"]])  # fmt: skip
+    lengths = torch.tensor(games["lengths"])
+    returns = torch.tensor(games["returns"], dtype=torch.float64)
+    return {"stack": frames.clone(), "returns": returns, "lengths": lengths, "env": inner}, frames

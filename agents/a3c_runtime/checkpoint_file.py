@@ -2,7 +2,9 @@
 Its tensors are flat, dense and declared (name, dtype, shape) in a header of bounded size;
 everything else is one small JSON document in the header's metadata, validated against a
 declared schema (`Document`: every field typed and bounded, unknown fields refused); the file
-is sealed with the SHA-256 of its bytes. Such a file holds no code, no nesting, no views and no
+is sealed with the SHA-256 of its bytes. A generator's state is a tensor of its 37 bytes (every
+value of which is a PCG64 state); a worker's Catch games are in the document, bounded by the
+schema (a3c_runtime.catch_state). Such a file holds no code, no nesting, no views and no
 shared or cyclic references, so none needs a check; what it can hold is checked here (the
 header, the seal, the document) and by the gate (a3c_runtime.checkpoints: the tensor table
 against the network the flags build) before a tensor is read, then by safetensors' own loader
@@ -11,7 +13,6 @@ against accidents (a flipped bit, a truncated copy), not against someone: anyone
 recompute it."""
 
 import contextlib
-import functools
 import hashlib
 import json
 import math
@@ -21,15 +22,24 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import torch
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, ConfigDict, Field, ValidationError
 
-from .catch_state import catch_layout, catch_problem, part_at
+from .catch_state import (
+    MAX_ENVS,
+    CatchGames,
+    Strict,
+    generator_bytes,
+    generator_state,
+    loaded_games,
+    stored_games,
+)
 from .flags import UsageError
 
-CHECKPOINT_FORMAT = "a3c-checkpoint-v3"  # safetensors with a declared document
+CHECKPOINT_FORMAT = "a3c-checkpoint-v4"  # safetensors with a declared document
+OLDER_FORMATS = ("a3c-checkpoint-v3",)  # (and the torch zips before them): convert_checkpoint's
 MAX_HEADER = 16 << 20  # bytes of the JSON header (tensor table and document), read before all
 MAX_STEP = 10**13
-MAX_PENDING, MAX_WORKERS, MAX_ENVS = 10_000, 1024, 4096
+MAX_PENDING, MAX_WORKERS = 10_000, 1024
 DTYPE_NAMES = {torch.float64: "F64", torch.float32: "F32", torch.bfloat16: "BF16",
                torch.float16: "F16", torch.int64: "I64", torch.int32: "I32", torch.int16: "I16",
                torch.int8: "I8", torch.uint8: "U8", torch.bool: "BOOL"}  # fmt: skip
@@ -39,40 +49,7 @@ SEAL = "0" * 64  # the seal's place in the header while the SHA-256 is computed
 # ------------------------------------------------------------------------------------------------
 # The schema: every field of the document with its type and bounds; nothing else is accepted
 # ------------------------------------------------------------------------------------------------
-class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
-
-
-def below_2_128(text: str) -> str:
-    if int(text) >= 1 << 128:
-        raise ValueError("not below 2**128")
-    return text
-
-
-Uint128 = Annotated[str, Field(pattern=r"^(0|[1-9][0-9]{0,38})$"), AfterValidator(below_2_128)]
 Step = Annotated[int, Field(ge=0, le=MAX_STEP)]
-
-
-class PCG64Words(Strict):
-    state: Uint128  # decimal strings: JSON numbers beyond 2**53 are not portable
-    inc: Uint128
-
-
-class PCG64(Strict):
-    """A NumPy PCG64 generator's `bit_generator.state`."""
-
-    bit_generator: Literal["PCG64"]
-    state: PCG64Words
-    has_uint32: Annotated[int, Field(ge=0, le=1)]
-    uinteger: Annotated[int, Field(ge=0, lt=1 << 32)]
-
-
-class Worker(Strict):
-    """What a checkpoint keeps of a worker beside its tensors (frames, Catch's arrays, an LSTM's
-    state): its generator, and its Catch envs' generators (None: no env state, as on Atari)."""
-
-    generator: PCG64
-    env: Annotated[list[PCG64], Field(min_length=1, max_length=MAX_ENVS)] | None
 
 
 def flag_value(value: Any) -> Any:
@@ -86,24 +63,45 @@ def flag_value(value: Any) -> Any:
     raise ValueError("not a bool, a 64-bit whole number, a finite number, a short string or null")
 
 
+def within(low: int, high: int) -> Any:
+    """A count or size a checkpoint's flags may ask of this machine (None: a flag newer than
+    the checkpoint, which gets its default)."""
+    return Annotated[int, Field(ge=low, le=high)] | None
+
+
+class Flags(Strict):
+    """A checkpoint's flags (the run's Args), each a scalar (their types are the script's, its
+    gate checks them); the counts and sizes within what the project offers this machine."""
+
+    model_config = ConfigDict(extra="allow")
+    __pydantic_extra__: dict[Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,63}$")],
+                             Annotated[Any, AfterValidator(flag_value)]]  # fmt: skip
+    num_workers: within(1, MAX_WORKERS) = None  # processes
+    envs_per_worker: within(1, MAX_ENVS) = None
+    eval_episodes: within(1, 10_000) = None  # envs, one per episode
+    t_max: within(1, 100_000) = None
+    total_timesteps: within(1, MAX_STEP) = None
+    eval_interval: within(1, MAX_STEP) = None
+    checkpoint_interval: within(1, MAX_STEP) = None
+    lstm_cells: within(1, 16_384) = None  # the scripts' own network sizes
+    prototypes_per_action: within(1, 4096) = None
+    lws_kcps: within(1, 4096) = None
+    lws_second_layer_maps: within(1, 4096) = None
+    ww_where_maps: within(0, 4096) = None
+
+
 class Document(Strict):
     """Everything of a checkpoint but its tensors."""
 
-    format: Literal["a3c-checkpoint-v3"]
+    format: Literal["a3c-checkpoint-v4"]
     script: Annotated[str, Field(max_length=4096)]
-    optimizer_name: Literal["rmsprop", "adam"]
     global_step: Step
     wall_time: Annotated[float, Field(ge=0, le=1e12)]
-    args: Annotated[
-        dict[Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,63}$")],
-             Annotated[Any, AfterValidator(flag_value)]],
-        Field(max_length=512),
-    ]  # fmt: skip
+    args: Flags
     pending_steps: Annotated[list[Step], Field(max_length=MAX_PENDING)]
-    workers: Annotated[
-        dict[Annotated[str, Field(pattern=r"^(0|[1-9][0-9]{0,2}|10[01][0-9]|102[0-3])$")], Worker],
-        Field(max_length=MAX_WORKERS),
-    ]
+    # each worker's Catch games (None: no env state, as on Atari), by id (below MAX_WORKERS)
+    workers: dict[Annotated[str, Field(pattern=r"^(0|[1-9][0-9]{0,2}|10[01][0-9]|102[0-3])$")],
+                  CatchGames | None]  # fmt: skip
 
 
 class Entry(Strict):
@@ -148,15 +146,15 @@ def encode(raw: dict, checked: bool = True) -> bytes:
     workers = {}
     for worker_id, parts in raw["workers"].items():
         generator, env, frames, *carried = parts
-        prefix = f"workers/{worker_id}"
-        tensors[f"{prefix}/frames"] = frames
+        prefix, games = f"workers/{worker_id}", None
+        own = {"frames": frames, "generator": generator_bytes(generator["bit_generator"])}
+        if env is not None:  # Catch's games: their stacks are the frames
+            games, catch = stored_games(env["env"], frames)
+            own.update(catch)
         for j, tensor in enumerate(carried[0] if carried else ()):
-            tensors[f"{prefix}/lstm/{j}"] = tensor  # (an LSTM's carried state)
-        if env is not None:
-            for name in catch_layout():
-                tensors[f"{prefix}/env/{name}"] = part_at(env["env"], name)
-        rngs = None if env is None else [pcg64(s) for s in env["env"]["env"]["rngs"]]
-        workers[str(worker_id)] = {"generator": pcg64(generator["bit_generator"]), "env": rngs}
+            own[f"lstm/{j}"] = tensor  # (an LSTM's carried state)
+        tensors.update({f"{prefix}/{name}": tensor for name, tensor in own.items()})
+        workers[str(worker_id)] = games
     for name, tensor in tensors.items():  # (before .contiguous(), which would copy a view)
         dense = tensor.layout == torch.strided and tensor.dtype in DTYPE_NAMES
         if not dense or tensor.numel() * tensor.element_size() > storage_bytes(tensor):
@@ -184,12 +182,6 @@ def sealed(tensors: dict[str, torch.Tensor], document: dict) -> bytes:
 
 def seal_field(digest: str) -> bytes:
     return f'"sha256":"{digest}"'.encode()
-
-
-def pcg64(state: dict) -> dict:
-    """A PCG64 state in the document's form (its 128-bit words as decimal strings)."""
-    words = {k: str(state["state"][k]) for k in ("state", "inc")}
-    return {**state, "state": words}
 
 
 def storage_bytes(tensor: torch.Tensor) -> int:
@@ -227,11 +219,8 @@ def read_checkpoint(
             data = Path(path).read_bytes()  # read once: what is verified is what is loaded
         except OSError as e:
             raise UsageError(f"cannot read checkpoint {path!r}: {e.strerror or e}") from e
-    if data[:2] == b"PK":  # a zip: torch.save's, the format before this one
-        raise UsageError(
-            f"checkpoint {path!r} is of the older format (a torch zip), which is not loaded; if "
-            f"you trust it, convert it: {convert_command(path)}"
-        )
+    if data[:2] == b"PK":  # a zip: torch.save's, the format before safetensors
+        raise older_format(path, "a torch zip")
     size = int.from_bytes(data[:8], "little")
     try:
         if size > min(MAX_HEADER, len(data) - 8):
@@ -245,10 +234,18 @@ def read_checkpoint(
         raise UsageError(f"checkpoint {path!r} is corrupt: its bytes do not match the SHA-256 "
                          "it was written with")  # fmt: skip
     try:
-        document = Document.model_validate_json(header.metadata.a3c).model_dump()
+        document = Document.model_validate_json(header.metadata.a3c).model_dump(exclude_unset=True)
     except ValidationError as e:
-        raise UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}") from None
+        tag = e.errors()[0]["input"] if e.errors()[0]["loc"] == ("format",) else None
+        malformed = UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}")
+        raise older_format(path, tag) if tag in OLDER_FORMATS else malformed from None
     return document, header.__pydantic_extra__, data
+
+
+def older_format(path: str, kind: str) -> UsageError:
+    """The refusal of a checkpoint of an older format, naming the command that converts it."""
+    return UsageError(f"checkpoint {path!r} is of the older format ({kind}), which is not loaded; "
+                      f"if you trust it, convert it: {convert_command(path)}")  # fmt: skip
 
 
 def problem_of(error: Exception) -> str:
@@ -276,16 +273,11 @@ def read_tensors(data: bytes, document: dict, path: str) -> dict[str, Any]:
     squares = ("optimizer/square_avg/", "optimizer/exp_avg_sq/", "optimizer/step")
     for name, tensor in tensors.items():
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
-            part, shown = NOT_FINITE[name.split("/")[0]], name.removeprefix("model/")
-            raise UsageError(f"checkpoint {path!r}: {part} (NaN or inf in {shown}: the run "
-                             "diverged)")  # fmt: skip
+            raise UsageError(f"checkpoint {path!r}: its {name} holds NaN or inf (the run diverged)")
         if name.startswith(squares) and bool((tensor < 0).any()):
             raise UsageError(f"checkpoint {path!r}: its optimizer statistic {name} is negative")
-    for prefix in (f"workers/{k}" for k, worker in document["workers"].items() if worker["env"]):
-        arrays = {name: tensors[f"{prefix}/env/{name}"] for name in catch_layout()}
-        problem = catch_problem(arrays, tensors[f"{prefix}/frames"])
-        if problem is not None:
-            raise UsageError(f"checkpoint {path!r} is malformed: its {prefix}/{problem}")
+        if name.endswith("/starts") and not bool(((tensor >= 0) & (tensor < 1)).all()):
+            raise UsageError(f"checkpoint {path!r}: its {name} holds a draw outside [0, 1)")
     return runtime_form(tensors, document)
 
 
@@ -304,21 +296,16 @@ def runtime_form(tensors: dict[str, torch.Tensor], document: dict) -> dict[str, 
     pending = [(step, {n: tensors[f"pending/{k}/{n}"] for n in model})
                for k, step in enumerate(document["pending_steps"])]  # fmt: skip
     workers = {}
-    for worker_id, worker in document["workers"].items():
-        prefix = f"workers/{worker_id}"
-        env = None
-        if worker["env"] is not None:  # the nested form catch_env's get_state gives
-            env = {"env": {"rngs": [generator_state(s) for s in worker["env"]]}}
-            for name in catch_layout():
-                *parents, last = f"env/{name}".split("/")
-                place = functools.reduce(lambda d, k: d.setdefault(k, {}), parents, env)
-                place[last] = tensors[f"{prefix}/env/{name}"]
-            env["env"]["env"]["drawn"] = list(env["env"]["env"]["drawn"].values())
-            env["env"]["env"]["rngs"] = env["env"].pop("rngs")
-        carried = tuple(tensors[n] for n in sorted(tensors, key=natural)
-                        if n.startswith(f"{prefix}/lstm/"))  # fmt: skip
-        parts = [{"bit_generator": generator_state(worker["generator"])}, env,
-                 tensors[f"{prefix}/frames"]] + ([carried] if carried else [])  # fmt: skip
+    for worker_id, games in document["workers"].items():
+        prefix = f"workers/{worker_id}/"
+        own = {n.removeprefix(prefix): t for n, t in tensors.items() if n.startswith(prefix)}
+        env, frames = None, own["frames"]
+        if games is not None:  # Catch's games, in the form catch_env's get_state gives
+            state, frames = loaded_games(games, own)
+            env = {"env": state}
+        carried = tuple(own[n] for n in sorted(own, key=natural) if n.startswith("lstm/"))
+        parts = [{"bit_generator": generator_state(own["generator"])}, env,
+                 frames] + ([carried] if carried else [])  # fmt: skip
         workers[int(worker_id)] = parts
     return {
         "model": model,
@@ -328,19 +315,8 @@ def runtime_form(tensors: dict[str, torch.Tensor], document: dict) -> dict[str, 
     }
 
 
-NOT_FINITE = {"model": "the network has non-finite weights",
-              "optimizer": "the optimizer statistics are not finite",
-              "pending": "the network of a pending evaluation has non-finite weights",
-              "workers": "a worker's state is not finite"}  # fmt: skip
-
-
 def natural(name: str) -> list:
     return [int(part) if part.isdigit() else part for part in name.split("/")]
-
-
-def generator_state(document: dict) -> dict:
-    """A PCG64 state from the document's form: NumPy's `bit_generator.state`."""
-    return {**document, "state": {k: int(v) for k, v in document["state"].items()}}
 
 
 class WriteFailed(Exception):

@@ -10,7 +10,7 @@ older format (a torch zip) are read only by python -m a3c_tools.convert_checkpoi
 import functools
 import re
 import typing
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,9 @@ import torch.nn as nn
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 from typing_extensions import TypedDict
 
-from .catch_state import catch_layout
+from catch_env.catch import START_BUFFER
+
+from .catch_state import PCG64_BYTES
 from .checkpoint_file import (  # noqa: F401  (the names callers import from here)
     CHECKPOINT_FORMAT,
     DTYPE_NAMES,
@@ -41,41 +43,9 @@ from .checkpoint_file import (  # noqa: F401  (the names callers import from her
 from .flags import OBSERVATION_SHAPE, VALID_ENVS, UsageError, probe_env
 from .hogwild import Shared
 
-# Chapter 8's ideas were flags of the thesis scripts before each became a script of its own in
-# agents/future_work/: a checkpoint an older thesis script wrote with one of them set belongs to
-# that script, which plays and resumes it; the thesis script refuses it, naming the script.
-MOVED_FLAGS = {
-    "a3c_lpq.py": {
-        ("value_head", "prototypes"): "future_work/a3c_lpq_value_head.py",
-        ("prototype_init", "data"): "future_work/a3c_lpq_data_init.py",
-        ("prototype_growth", True): "future_work/a3c_lpq_growth.py",
-    },
-    "a3c_glpq.py": {
-        ("value_head", "prototypes"): "future_work/a3c_glpq_value_head.py",
-        ("prototype_init", "data"): "future_work/a3c_glpq_data_init.py",
-        ("prototype_growth", True): "future_work/a3c_glpq_growth.py",
-    },
-    "a3c_lws.py": {("lws_centroid_source", "online"): "future_work/a3c_lws_online.py"},
-}
 # a script a checkpoint may name: agents/a3c_*.py or agents/future_work/a3c_*.py, by file name
 # ("" before the name was stored); never a path elsewhere
 SCRIPT_NAME = re.compile(r"(future_work/)?a3c_[A-Za-z0-9_]+\.py")
-# what a checkpoint's flags may ask of this machine, beyond the flags' own checks (flags.py):
-# counts, sizes and the scripts' own network sizes, (lowest, highest)
-FLAG_BOUNDS = {
-    "num_workers": (1, MAX_WORKERS),  # processes
-    "envs_per_worker": (1, MAX_ENVS),
-    "eval_episodes": (1, 10_000),  # envs, one per episode
-    "t_max": (1, 100_000),
-    "total_timesteps": (1, MAX_STEP),
-    "eval_interval": (1, MAX_STEP),
-    "checkpoint_interval": (1, MAX_STEP),
-    "lstm_cells": (1, 16_384),
-    "prototypes_per_action": (1, 4096),
-    "lws_kcps": (1, 4096),
-    "lws_second_layer_maps": (1, 4096),
-    "ww_where_maps": (0, 4096),
-}
 
 
 def save_checkpoint(
@@ -96,7 +66,6 @@ def save_checkpoint(
         "script": script,
         "model": snapshot.get("model") or shared.model.state_dict(),
         "optimizer": snapshot.get("optimizer") or shared.optimizer.state_dict(),
-        "optimizer_name": args.optimizer,
         "global_step": snapshot.get("global_step", shared.global_step()),
         "wall_time": wall_time,
         "args": asdict(args),
@@ -119,7 +88,6 @@ class Checkpoint:
     args: dict[str, Any]
     global_step: int
     wall_time: float
-    optimizer_name: str
     run_folder: Path
     model: dict[str, torch.Tensor] = field(default_factory=dict)
     optimizer: dict = field(default_factory=dict)
@@ -133,8 +101,9 @@ class Checkpoint:
 
 def open_checkpoint(path: str, flag: str | None = None, data: bytes | None = None) -> Checkpoint:
     """The gate: the checkpoint at path read once (read_checkpoint) and checked: the script a
-    name of agents/ or agents/future_work/, the env an id the scripts accept, its flags' sizes
-    within FLAG_BOUNDS. Else a one-line UsageError naming what is wrong. (`data`: the file's
+    name of agents/ or agents/future_work/, the env an id the scripts accept (its flags' counts
+    and sizes are the schema's: checkpoint_file.Flags). Else a one-line UsageError naming what
+    is wrong. (`data`: the file's
     bytes, read already.)"""
     raw, table, data = read_checkpoint(path, flag, data)
     if raw["script"] and not SCRIPT_NAME.fullmatch(raw["script"]):
@@ -146,17 +115,11 @@ def open_checkpoint(path: str, flag: str | None = None, data: bytes | None = Non
     problem = "no env" if not isinstance(env, str) else env_problem(env)
     if problem is not None:
         raise UsageError(f"checkpoint {path!r} holds the env {env!r}: {problem}")
-    for name, (low, high) in FLAG_BOUNDS.items():
-        value = raw["args"].get(name, low)  # (a flag newer than the checkpoint: its default)
-        if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
-            raise UsageError(f"checkpoint {path!r} asks for --{name.replace('_', '-')} "
-                             f"{value!r} (valid: {low} to {high:,})")  # fmt: skip
+    fields = {key: raw[key] for key in ("script", "args", "global_step", "wall_time")}
+    folder = Path(path).resolve().parent
     return Checkpoint(
-        path=path, script=raw["script"], env=env, args=raw["args"],
-        global_step=raw["global_step"], wall_time=raw["wall_time"],
-        optimizer_name=raw["optimizer_name"], run_folder=Path(path).resolve().parent,
-        document=raw, table=table, data=data,
-    )  # fmt: skip
+        path, env=env, run_folder=folder, document=raw, table=table, data=data, **fields
+    )
 
 
 def env_problem(env_id: str) -> str | None:
@@ -164,7 +127,7 @@ def env_problem(env_id: str) -> str | None:
     Gymnasium would import), or None. Looks the id up without making the env."""
     import gymnasium as gym
 
-    import catch_env  # noqa: F401  (registers Catch-v0)
+    from catch_env import CATCH_ENTRY_POINT  # (and registers Catch-v0)
     from catch_env.wrappers import ATARI_ENTRY_POINT, is_atari
 
     if ":" in env_id:
@@ -180,9 +143,6 @@ def env_problem(env_id: str) -> str | None:
     return None
 
 
-CATCH_ENTRY_POINT = "catch_env.catch:CatchEnv"
-
-
 def load_checkpoint(path: str, agent: Any, flag: str | None = None) -> Checkpoint:
     """The gate for a script: a checkpoint of this script (open_checkpoint, then for_agent), or
     a one-line UsageError saying what is wrong with it."""
@@ -194,34 +154,18 @@ def for_agent(checkpoint: Checkpoint, agent: Any) -> Checkpoint:
     (or before the name was stored), its flags of the script's types, its tensors those of the
     network its flags build; with `flags` set to the run's Args and its tensors read.
     UsageError otherwise."""
-    path, script = checkpoint.path, checkpoint.script
-    moved = moved_script(checkpoint)
-    if moved is not None:
-        owner, flag, value = moved
-        if owner != agent.script:
-            raise UsageError(
-                f"checkpoint {path!r} was trained by {script} with --{flag.replace('_', '-')} "
-                f"{value}, now a script of its own: use python agents/{owner}"
-            )
-    elif script and script != agent.script:
+    path, script, hints = checkpoint.path, checkpoint.script, typing.get_type_hints(agent.Args)
+    if script and script != agent.script:
         raise UsageError(
             f"checkpoint {path!r} was written by {script}, not {agent.script}: "
             f"use python agents/{script}"
         )
-    trained = agent.trained_args(checkpoint)
-    hints = typing.get_type_hints(agent.Args)
+    trained = {k: v for k, v in agent.trained_args(checkpoint).items() if k in hints}
     try:
-        flags_type(agent.Args).validate_python({k: v for k, v in trained.items() if k in hints})
+        flags = agent.Args(**flags_type(agent.Args).validate_python(trained))
     except ValidationError as e:
-        name = e.errors()[0]["loc"][0]
-        kind = getattr(hints[name], "__name__", str(hints[name]))
-        raise UsageError(f"checkpoint {path!r} is malformed: its --{name.replace('_', '-')} "
-                         f"{trained[name]!r} is not {kind}") from None  # fmt: skip
-    known = {f.name for f in fields(agent.Args)}
-    try:
-        flags = agent.Args(**{k: v for k, v in trained.items() if k in known})
-    except (TypeError, ValueError) as e:
-        raise UsageError(f"checkpoint {path!r} has other flags than this script: {e}") from e
+        raise UsageError(f"checkpoint {path!r} is malformed: its flag "
+                         f"{problem_of(e).removeprefix('its ')}") from None  # fmt: skip
     problem = fit_problem(expected_table(agent, flags, checkpoint), checkpoint.table)
     if problem is not None:  # before a tensor is read
         raise UsageError(f"checkpoint {path!r} does not fit this network{problem}")
@@ -238,7 +182,7 @@ def expected_table(agent: Any, flags: Any, checkpoint: Checkpoint) -> dict[str, 
     path, envs = checkpoint.path, flags.envs_per_worker
     try:
         with torch.device("meta"):
-            network = agent.network(actions_of(agent.make_env, checkpoint.env), flags)
+            network = agent.network(probe_env(agent.make_env, checkpoint.env), flags)
             carried = network.initial_state(envs) if hasattr(network, "initial_state") else ()
     except (UsageError, RuntimeError, ValueError, TypeError, OverflowError, MemoryError) as e:
         raise UsageError(
@@ -247,47 +191,38 @@ def expected_table(agent: Any, flags: Any, checkpoint: Checkpoint) -> dict[str, 
     model = {k: (DTYPE_NAMES.get(v.dtype), tuple(v.shape)) for k, v in network.state_dict().items()}
     table = {f"model/{k}": v for k, v in model.items()}
     params = [(DTYPE_NAMES.get(p.dtype), tuple(p.shape)) for p in network.parameters()]
-    adam = checkpoint.optimizer_name == "adam"
+    adam = flags.optimizer == "adam"
     for stat in ("exp_avg", "exp_avg_sq") if adam else ("square_avg",):
         table.update({f"optimizer/{stat}/{i}": p for i, p in enumerate(params)})
     if adam:
         table["optimizer/step_count"] = ("F64", (1,))
     for k in range(len(checkpoint.document["pending_steps"])):
         table.update({f"pending/{k}/{name}": v for name, v in model.items()})
-    for worker_id, worker in checkpoint.document["workers"].items():
+    for worker_id, games in checkpoint.document["workers"].items():
         prefix = f"workers/{worker_id}"
         table[f"{prefix}/frames"] = ("U8", (envs, *OBSERVATION_SHAPE))
+        table[f"{prefix}/generator"] = ("U8", (PCG64_BYTES,))
         table.update({f"{prefix}/lstm/{j}": (DTYPE_NAMES.get(s.dtype), tuple(s.shape))
                       for j, s in enumerate(carried)})  # fmt: skip
-        if worker["env"] is not None:  # Catch's, one generator per env
-            if len(worker["env"]) != envs or is_atari(checkpoint.env):
+        if games is not None:  # Catch's: the stacks' older frames as bits, the start draws
+            if is_atari(checkpoint.env) or any(len(values) != envs for values in games.values()):
                 raise UsageError(f"checkpoint {path!r} is malformed: worker {worker_id}'s env "
                                  f"state is not that of {envs} Catch envs")  # fmt: skip
-            table.update({f"{prefix}/env/{name}": (DTYPE_NAMES[dtype], (envs, *shape))
-                          for name, (dtype, shape) in catch_layout().items()})  # fmt: skip
+            frames = (envs, OBSERVATION_SHAPE[0] - 1, *OBSERVATION_SHAPE[1:])
+            table.update({f"{prefix}/frames": ("BOOL", frames),
+                          f"{prefix}/starts": ("F64", (envs, START_BUFFER, 3)),
+                          f"{prefix}/generators": ("U8", (envs, PCG64_BYTES))})  # fmt: skip
     return table
 
 
-@functools.lru_cache(maxsize=64)
-def actions_of(make_env: Any, env_id: str) -> int:
-    return probe_env(make_env, env_id)
-
-
 def fit_problem(expected: dict[str, tuple], table: dict[str, Entry]) -> str | None:
-    """How the tensor table differs from the expected one, or None: the first tensor that
-    differs, the network's first and a size mismatch before a name missing or unexpected (as
-    load_state_dict says it)."""
+    """The first tensor (by name: the network's first) in which the tensor table differs from
+    the expected one, and how; or None."""
     have = {name: (entry.dtype, tuple(entry.shape)) for name, entry in table.items()}
-    names = [*expected, *(name for name in have if name not in expected)]
-    differ = [name for name in names if expected.get(name) != have.get(name)]
-    if not differ:
-        return None
-    both = expected.keys() & have.keys()
-    name = min(differ, key=lambda n: (not n.startswith("model/"), n not in both))
-    shown = name.removeprefix("model/")
-    if name in both:
-        return f": size mismatch for {shown}: {have[name]} in it, {expected[name]} here"
-    return f" (is it another script's?): {'missing' if name in expected else 'unexpected'}: {shown}"
+    differ = sorted(n for n in expected.keys() | have.keys() if expected.get(n) != have.get(n))
+    name = differ[0] if differ else None
+    hint = "" if name in have and name in expected else " (is it another script's?)"
+    return name and f"{hint}: {name}: {have.get(name, 'missing')} in it, {expected.get(name)} here"
 
 
 @functools.cache
@@ -297,15 +232,6 @@ def flags_type(args: type) -> TypeAdapter:
     flags = TypedDict(args.__name__, typing.get_type_hints(args), total=False)
     flags.__pydantic_config__ = ConfigDict(strict=True)
     return TypeAdapter(flags)
-
-
-def moved_script(checkpoint: Checkpoint) -> tuple[str, str, Any] | None:
-    """(the future-work script, the flag, its value) of a checkpoint that a thesis script wrote
-    with a chapter-8 flag set (MOVED_FLAGS), else None."""
-    for (flag, value), owner in MOVED_FLAGS.get(checkpoint.script, {}).items():
-        if checkpoint.args.get(flag) == value:
-            return owner, flag, value
-    return None
 
 
 def checkpoint_step(path: Path, agent: Any = None) -> int | None:
@@ -351,10 +277,10 @@ def restore(shared: Shared, checkpoint: Checkpoint, args: Any, path: str, agent:
                 f"checkpoint {path!r} was trained with --{key.replace('_', '-')} "
                 f"{trained}, not {getattr(args, key)}"
             )
-    if checkpoint.optimizer_name != args.optimizer:
+    if checkpoint.flags.optimizer != args.optimizer:
         raise UsageError(
-            f"checkpoint {path!r} holds {checkpoint.optimizer_name} statistics; "
-            f"pass --optimizer {checkpoint.optimizer_name}"
+            f"checkpoint {path!r} holds {checkpoint.flags.optimizer} statistics; "
+            f"pass --optimizer {checkpoint.flags.optimizer}"
         )
     load_network(shared.model, checkpoint, path)
     try:

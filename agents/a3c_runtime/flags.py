@@ -3,6 +3,7 @@ one-line UsageError, and --precision."""
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import math
 import os
@@ -165,6 +166,7 @@ def refuse_tf32(precision: str) -> None:
         )
 
 
+@functools.lru_cache(maxsize=64)  # (a checkpoint's gate asks it of each checkpoint a tool reads)
 def probe_env(make_env: Any, env_id: str) -> int:
     """The number of actions of env_id; UsageError unless its observations are the thesis's
     stacked 84x84 frames (an id such as CartPole-v1 has none)."""

@@ -1,6 +1,7 @@
-"""A checkpoint of the older format (a torch zip: v1 or v2, sealed or not) converted into the
-current one (safetensors with a declared document, a3c_runtime.checkpoint_file), on its
-owner's explicit request:
+"""A checkpoint of an older format (a torch zip: v1 or v2, sealed or not; or v3, safetensors with
+its Catch arrays and generators in the older layout) converted into the current one (v4,
+safetensors with a declared document, a3c_runtime.checkpoint_file), on its owner's explicit
+request:
 
     python -m a3c_tools.convert_checkpoint runs/<run>/checkpoint.pt
 
@@ -12,7 +13,9 @@ name (no walk through what a field holds), refusing anything the current format 
 A v1 checkpoint's worker states are pickled: they are unpickled, the one place in the project
 that unpickles a file, so convert only a checkpoint you trust (your own runs). What it writes
 passes the gate of the script that wrote it before it replaces the file atomically (the old one
-stays until the new one is whole), or is written to --out.
+stays until the new one is whole), or is written to --out. A thesis script's checkpoint
+with one of chapter 8's flags set (from before each became a script of its own) is converted
+as the future-work script's, which plays and resumes it.
 """
 
 from __future__ import annotations
@@ -30,6 +33,25 @@ from typing import Any
 from a3c_tools import AGENTS, agent_scripts, load_script, run_main
 
 OLD_FORMATS = ("a3c-checkpoint-v1", "a3c-checkpoint-v2")  # v1: its worker states pickled
+# what a checkpoint that does not hold what its format should raises while it is converted
+MALFORMED = (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError,
+             RecursionError, RuntimeError, pickle.UnpicklingError)  # fmt: skip
+# Chapter 8's ideas were flags of the thesis scripts before each became a script of its own in
+# agents/future_work/: a checkpoint an older thesis script wrote with one of them set belongs to
+# that script
+MOVED_FLAGS = {
+    "a3c_lpq.py": {
+        ("value_head", "prototypes"): "future_work/a3c_lpq_value_head.py",
+        ("prototype_init", "data"): "future_work/a3c_lpq_data_init.py",
+        ("prototype_growth", True): "future_work/a3c_lpq_growth.py",
+    },
+    "a3c_glpq.py": {
+        ("value_head", "prototypes"): "future_work/a3c_glpq_value_head.py",
+        ("prototype_init", "data"): "future_work/a3c_glpq_data_init.py",
+        ("prototype_growth", True): "future_work/a3c_glpq_growth.py",
+    },
+    "a3c_lws.py": {("lws_centroid_source", "online"): "future_work/a3c_lws_online.py"},
+}
 # the older format's seal: the zip's comment holds the SHA-256 of every byte before it
 SEAL_PREFIX = b"a3c-sha256:"
 END_OF_ARCHIVE = b"PK\x05\x06"  # the end-of-central-directory record: 22 bytes + the comment
@@ -95,13 +117,56 @@ def converted(old: Any) -> dict:
             raise ValueError("a pending evaluation is not a (step, network) pair")
     return {
         **{
-            key: old[key]
-            for key in ("model", "optimizer", "optimizer_name", "global_step", "wall_time", "args")
+            key: old[key] for key in ("model", "optimizer", "global_step", "wall_time", "args")
         },  # fmt: skip
         "script": old.get("script", ""),
         "workers": states,
         "pending_evaluations": [tuple(request) for request in pending],
     }
+
+
+def v3_fields(data: bytes) -> dict | None:
+    """The fields of a v3 checkpoint (safetensors; its Catch arrays, canvas included, and its
+    generators' words in the document), of the form save_checkpoint hands on; None if data is
+    not one."""
+    import json
+
+    import safetensors.torch
+    from a3c_runtime.checkpoint_file import runtime_form
+
+    try:
+        header = json.loads(data[8 : 8 + int.from_bytes(data[:8], "little")])
+        document = json.loads(header["__metadata__"]["a3c"])
+        if document["format"] != "a3c-checkpoint-v3":
+            return None
+    except (ValueError, KeyError, TypeError, RecursionError):
+        return None
+    tensors = safetensors.torch.load(data)
+    decimal = lambda state: {**state, "state": {k: int(v) for k, v in state["state"].items()}}  # noqa: E731
+    workers = {}
+    for worker_id, worker in document["workers"].items():
+        prefix = f"workers/{worker_id}/"
+        own = {n.removeprefix(prefix): t for n, t in tensors.items() if n.startswith(prefix)}
+        env = None
+        if worker["env"] is not None:  # the wrapper's arrays at env/, the games' at env/env/
+            inner = {n[len("env/env/") :]: t for n, t in own.items() if n.startswith("env/env/")}
+            inner["rngs"] = [decimal(s) for s in worker["env"]]
+            env = {"env": {**{k: own[f"env/{k}"] for k in ("stack", "returns", "lengths")},
+                           "env": inner}}  # fmt: skip
+        carried = tuple(own[f"lstm/{j}"] for j in range(sum(n.startswith("lstm/") for n in own)))
+        workers[int(worker_id)] = [{"bit_generator": decimal(worker["generator"])}, env,
+                                   own["frames"], *([carried] if carried else [])]  # fmt: skip
+    fields = runtime_form(tensors, {**document, "workers": {}})  # its model and optimizer
+    kept = {k: document[k] for k in ("script", "global_step", "wall_time", "args", "format")}
+    return {**kept, **fields, "workers": workers}
+
+
+def attributed(fields: dict) -> dict:
+    """fields with the script that plays and resumes them (MOVED_FLAGS)."""
+    for (flag, value), owner in MOVED_FLAGS.get(fields["script"], {}).items():
+        if fields["args"].get(flag) == value:
+            return {**fields, "script": owner}
+    return fields
 
 
 def checked_by_its_script(checkpoint: Any) -> None:
@@ -120,19 +185,24 @@ def convert(path: str, out: str) -> str:
     import torch
     from a3c_runtime import UsageError
     from a3c_runtime.checkpoints import (
-        WriteFailed,
         check_checkpoint_path,
-        encode,
         open_checkpoint,
         problem_of,
-        write_atomically,
     )
 
     check_checkpoint_path(path)
     data = Path(path).read_bytes()
-    if data[:2] != b"PK":  # not a zip: the current format, or nothing of ours
-        checked_by_its_script(open_checkpoint(path, data=data))
-        return f"{path} is in the current format already: nothing to do"
+    if data[:2] != b"PK":  # not a zip: v3, the current format, or nothing of ours
+        import safetensors
+
+        try:
+            old = v3_fields(data)
+        except (*MALFORMED, safetensors.SafetensorError) as e:
+            raise UsageError(f"checkpoint {path!r} is corrupt: {problem_of(e)}") from None
+        if old is None:
+            checked_by_its_script(open_checkpoint(path, data=data))
+            return f"{path} is in the current format already: nothing to do"
+        return written(path, out, old)
     problem = zip_problem(data)
     if problem is not None:
         raise UsageError(f"checkpoint {path!r} is corrupt: {problem}")
@@ -150,9 +220,27 @@ def convert(path: str, out: str) -> str:
             f"checkpoint {path!r} is corrupt or not a torch file: {problem_of(e)}"
         ) from None
     try:
-        new = encode(converted(old))
-    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError,
-            RecursionError, RuntimeError, pickle.UnpicklingError) as e:  # fmt: skip
+        fields = {**converted(old), "format": old["format"]}
+    except MALFORMED as e:
+        raise UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}") from None
+    return written(path, out, fields)
+
+
+def written(path: str, out: str, old: dict) -> str:
+    """The older checkpoint's fields (`old`, its `format` among them) written to out in the
+    current format, once what is written passes the gate of its script; the line to print."""
+    from a3c_runtime import UsageError
+    from a3c_runtime.checkpoints import (
+        WriteFailed,
+        encode,
+        open_checkpoint,
+        problem_of,
+        write_atomically,
+    )
+
+    try:
+        new = encode(attributed({k: v for k, v in old.items() if k != "format"}))
+    except MALFORMED as e:
         raise UsageError(f"checkpoint {path!r} is malformed: {problem_of(e)}") from None
     checked_by_its_script(open_checkpoint(path, data=new))  # what is written passes the gate
     try:
