@@ -170,6 +170,13 @@ def test_a_v3_checkpoint_is_refused_naming_its_converter_which_converts_it_exact
     converted, original = read_checkpoint(path), read_checkpoint(written)
     assert converted["format"] == "a3c-checkpoint-v4"
     assert same(converted, original)
+    damaged = bytearray(as_v3(written.read_bytes()))
+    damaged[-5] ^= 1  # a flipped bit among the tensors' bytes
+    path.write_bytes(damaged)
+    result = run_main(convert_checkpoint.main, [str(path)])
+    expected = "is corrupt: its bytes do not match the SHA-256 it was written with\n"
+    assert result.returncode == 2 and result.stderr == f"error: checkpoint {str(path)!r} {expected}"
+    assert path.read_bytes() == damaged
 
 
 def same(a: object, b: object) -> bool:

@@ -132,15 +132,17 @@ def v3_fields(data: bytes) -> dict | None:
     import json
 
     import safetensors.torch
-    from a3c_runtime.checkpoint_file import runtime_form
+    from a3c_runtime.checkpoint_file import SEAL, runtime_form, seal_field
 
     try:
         header = json.loads(data[8 : 8 + int.from_bytes(data[:8], "little")])
-        document = json.loads(header["__metadata__"]["a3c"])
+        document, seal = json.loads(header["__metadata__"]["a3c"]), header["__metadata__"]["sha256"]
         if document["format"] != "a3c-checkpoint-v3":
             return None
     except (ValueError, KeyError, TypeError, RecursionError):
         return None
+    if seal != hashlib.sha256(data.replace(seal_field(seal), seal_field(SEAL), 1)).hexdigest():
+        raise ValueError("its bytes do not match the SHA-256 it was written with")  # (v4's seal)
     tensors = safetensors.torch.load(data)
     decimal = lambda state: {**state, "state": {k: int(v) for k, v in state["state"].items()}}  # noqa: E731
     workers = {}
