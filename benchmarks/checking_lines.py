@@ -9,8 +9,10 @@ Each argument is a git commit (read with `git show COMMIT:PATH`) or `worktree` (
 disk). Every top-level name of each module must be classified below, as checking (counted) or
 not (with the reason either way); a name of neither list stops the count (exit 2), so that a
 new check cannot go uncounted. The lists are per format: the torch zip of 952b51b and before
-(one module), and the safetensors file with a declared document from 028bfec on (three). Names
-that are identical in both formats are classified alike in both. Imports are not counted.
+(one module), and the safetensors file with a declared document from 028bfec on (three, and
+flags.py, where the schema of a checkpoint's flags lives from format v4 on, beside the command
+line's check that holds a run's own flags to it). Names that are identical in both formats are
+classified alike in both. Imports are not counted.
 """
 
 from __future__ import annotations
@@ -138,6 +140,32 @@ SAFETENSORS = {  # from 028bfec on
             "flags_type": "a script's flags' types, for pydantic's strict mode",
         },
         SHARED_NOT_CHECKING,
+    ),
+    "flags.py": (  # the schema of a checkpoint's flags lives beside the flags (a run's own are
+        # held to the same bounds on the command line): counted here as a checkpoint's schema
+        {
+            "MAX_STEP": "a bound of the schema",
+            "MAX_WORKERS": "a bound of the schema",
+            "flag_value": "the schema (a flag's value)",
+            "within": "the schema (a bounded count or size)",
+            "Flags": "the schema (a checkpoint's flags)",
+        },
+        {
+            "OBSERVATION_SHAPE": "the frames' shape (the flags' checks, the networks)",
+            "VALID_ENVS": "the flags' messages",
+            "EVAL_EPISODES": "a flag's default",
+            "UsageError": "the one-line error of every check",
+            "default_num_workers": "a flag's default",
+            "native_bf16": "--precision auto's rule",
+            "resolve_defaults": "the command line's checks of a run's own flags",
+            "check_within_checkpoint_bounds": "the command line's check of a run's own flags",
+            "check_memory": "the command line's check of a run's own flags",
+            "resolve_precision": "--precision",
+            "autocast_contexts": "--precision",
+            "refuse_tf32": "--precision",
+            "probe_env": "the command line's check of --env",
+            "default_text": "the flags' help",
+        },
     ),
     "catch_state.py": (
         {

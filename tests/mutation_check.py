@@ -586,6 +586,9 @@ MUTANTS = [
     Mutant("precision-bf16-learn-acts-in-bf16", "--precision bf16-learn acts in bf16 too",
            FLAGS, 'enabled=precision == "bf16"),', 'enabled=precision != "fp32"),',
            (PRECISION_T, FLAGS_T)),
+    Mutant("flags-beyond-checkpoint-bounds", "a run takes counts and sizes its checkpoints "
+           "cannot hold (--eval-episodes 10001: it fails at its first checkpoint)", FLAGS,
+           "    check_within_checkpoint_bounds(args)\n", "", (FLAGS_T,)),
     Mutant("checkpoint-interval-not-eval", "the checkpoint interval defaults to a fixed step "
            "count, not the evaluation interval", FLAGS,
            "args.checkpoint_interval = args.eval_interval",
@@ -654,7 +657,7 @@ MUTANTS = [
            "if name.startswith(squares) and bool((tensor < -1).any()):",
            ("tests/test_safe_loading.py",)),
     Mutant("checkpoint-lstm-cells-unbounded", "a checkpoint's --lstm-cells 10**9 passes the "
-           "gate's bounds", ("agents/a3c_runtime/checkpoint_file.py",),
+           "gate's bounds", FLAGS,
            "lstm_cells: within(1, 16_384) = None", "lstm_cells: within(1, 10**12) = None",
            ("tests/test_safe_loading.py",)),
     Mutant("batched-learning-rate-not-annealed", "the batch's learning rates stay at their "

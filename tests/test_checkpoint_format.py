@@ -201,10 +201,17 @@ def mutated(data: bytes, rng: random.Random) -> bytes:
         return rng.choice([2**63, 2**40, size + 1, len(data)]).to_bytes(8, "little") + data[8:]
     header = json.loads(data[8 : 8 + size])
     document = json.loads(header["__metadata__"]["a3c"])
-    if kind == 4:  # a field of the document, or a flag, replaced by junk
-        key = rng.choice([*document["args"], *document])
-        target = document["args"] if key in document["args"] else document
-        target[key] = rng.choice(JUNK)
+    if kind == 4:  # a field of the document, a flag or a worker's Catch games, junk in its place
+        games = document["workers"]["0"]
+        key = rng.choice([*document["args"], *document, *(f"games/{k}" for k in games)])
+        if key.startswith("games/") and rng.random() < 0.5:  # one game's value
+            values = games[key[len("games/") :]]
+            values[rng.randrange(len(values))] = rng.choice(JUNK)
+        elif key.startswith("games/"):  # every game's
+            games[key[len("games/") :]] = rng.choice(JUNK)
+        else:
+            target = document["args"] if key in document["args"] else document
+            target[key] = rng.choice(JUNK)
         header["__metadata__"]["a3c"] = json.dumps(document)
     else:  # a tensor's declared dtype, shape or name changed (a huge shape among them)
         name = rng.choice([n for n in header if n != "__metadata__"])
@@ -233,11 +240,18 @@ def resealed(header: dict, tensors: bytes) -> bytes:
 
 @pytest.mark.slow
 def test_fuzzed_checkpoints_load_or_are_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    from test_safe_loading import catch_worker_state
+
     agent = load_script("a3c_ff").AGENT
     module = load_script("a3c_ff")
-    args = tiny_args(module)
+    args = tiny_args(module, envs_per_worker=2)  # (catch_worker_state's envs)
+    shared = shared_for(module, args)
     path = tmp_path / "checkpoint.pt"
-    runtime.save_checkpoint(path, shared_for(module, args), args, 1.0, "a3c_ff.py")
+    snapshot = {  # every part a checkpoint can have: a worker's Catch games, an evaluation
+        "workers": {0: runtime.snapshots.saved_state(catch_worker_state())},
+        "pending_evaluations": [(1000, runtime.snapshots.copy_of(shared.model.state_dict()))],
+    }
+    runtime.save_checkpoint(path, shared, args, 1.0, "a3c_ff.py", snapshot)
     data = path.read_bytes()
     rng = random.Random(103)
     refused, loaded, sample = 0, 0, []

@@ -48,6 +48,14 @@ BAD_FLAGS = [
     (["--rms-init", "-1"], "error: --rms-init must be >= 0 (got -1.0)"),
     (["--resume", "."], "error: checkpoint '.' is a folder, and holds no checkpoint.pt"),
     (["--exp-name", "my/run"], "error: --exp-name 'my/run' holds a path separator: it is one "),
+    # a run's flags within what its checkpoints may hold (a3c_runtime.flags.Flags)
+    (
+        ["--eval-episodes", "10001"],
+        "error: --eval-episodes must be less than or equal to 10000 "
+        "(got 10001): the most a checkpoint holds",
+    ),
+    (["--num-workers", "1025"], "error: --num-workers must be less than or equal to 1024"),
+    (["--t-max", "100001"], "error: --t-max must be less than or equal to 100000 (got 100001)"),
     # the rollout buffers alone: 10^7 x 89 frames of 84x84 bytes, 6 TiB
     (
         ["--envs-per-worker", "10000000", "--num-workers", "1"],

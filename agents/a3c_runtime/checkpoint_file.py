@@ -15,17 +15,15 @@ recompute it."""
 import contextlib
 import hashlib
 import json
-import math
 import os
 import shlex
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import torch
-from pydantic import AfterValidator, ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field, ValidationError
 
 from .catch_state import (
-    MAX_ENVS,
     CatchGames,
     Strict,
     generator_bytes,
@@ -33,13 +31,12 @@ from .catch_state import (
     loaded_games,
     stored_games,
 )
-from .flags import UsageError
+from .flags import MAX_STEP, MAX_WORKERS, Flags, UsageError  # noqa: F401  (MAX_WORKERS: callers')
 
 CHECKPOINT_FORMAT = "a3c-checkpoint-v4"  # safetensors with a declared document
 OLDER_FORMATS = ("a3c-checkpoint-v3",)  # (and the torch zips before them): convert_checkpoint's
 MAX_HEADER = 16 << 20  # bytes of the JSON header (tensor table and document), read before all
-MAX_STEP = 10**13
-MAX_PENDING, MAX_WORKERS = 10_000, 1024
+MAX_PENDING = 10_000
 DTYPE_NAMES = {torch.float64: "F64", torch.float32: "F32", torch.bfloat16: "BF16",
                torch.float16: "F16", torch.int64: "I64", torch.int32: "I32", torch.int16: "I16",
                torch.int8: "I8", torch.uint8: "U8", torch.bool: "BOOL"}  # fmt: skip
@@ -50,44 +47,6 @@ SEAL = "0" * 64  # the seal's place in the header while the SHA-256 is computed
 # The schema: every field of the document with its type and bounds; nothing else is accepted
 # ------------------------------------------------------------------------------------------------
 Step = Annotated[int, Field(ge=0, le=MAX_STEP)]
-
-
-def flag_value(value: Any) -> Any:
-    """A flag's value: a bool, a whole number of 64 bits, a finite number, a string, None."""
-    if value is None or isinstance(value, bool) or (isinstance(value, str) and len(value) < 4096):
-        return value
-    if isinstance(value, int) and -(1 << 63) <= value < 1 << 63:
-        return value
-    if isinstance(value, float) and math.isfinite(value):
-        return value
-    raise ValueError("not a bool, a 64-bit whole number, a finite number, a short string or null")
-
-
-def within(low: int, high: int) -> Any:
-    """A count or size a checkpoint's flags may ask of this machine (None: a flag newer than
-    the checkpoint, which gets its default)."""
-    return Annotated[int, Field(ge=low, le=high)] | None
-
-
-class Flags(Strict):
-    """A checkpoint's flags (the run's Args), each a scalar (their types are the script's, its
-    gate checks them); the counts and sizes within what the project offers this machine."""
-
-    model_config = ConfigDict(extra="allow")
-    __pydantic_extra__: dict[Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,63}$")],
-                             Annotated[Any, AfterValidator(flag_value)]]  # fmt: skip
-    num_workers: within(1, MAX_WORKERS) = None  # processes
-    envs_per_worker: within(1, MAX_ENVS) = None
-    eval_episodes: within(1, 10_000) = None  # envs, one per episode
-    t_max: within(1, 100_000) = None
-    total_timesteps: within(1, MAX_STEP) = None
-    eval_interval: within(1, MAX_STEP) = None
-    checkpoint_interval: within(1, MAX_STEP) = None
-    lstm_cells: within(1, 16_384) = None  # the scripts' own network sizes
-    prototypes_per_action: within(1, 4096) = None
-    lws_kcps: within(1, 4096) = None
-    lws_second_layer_maps: within(1, 4096) = None
-    ww_where_maps: within(0, 4096) = None
 
 
 class Document(Strict):

@@ -25,8 +25,6 @@ from .catch_state import PCG64_BYTES
 from .checkpoint_file import (  # noqa: F401  (the names callers import from here)
     CHECKPOINT_FORMAT,
     DTYPE_NAMES,
-    MAX_ENVS,
-    MAX_STEP,
     MAX_WORKERS,
     PARTIAL_SUFFIX,
     Entry,
@@ -102,7 +100,7 @@ class Checkpoint:
 def open_checkpoint(path: str, flag: str | None = None, data: bytes | None = None) -> Checkpoint:
     """The gate: the checkpoint at path read once (read_checkpoint) and checked: the script a
     name of agents/ or agents/future_work/, the env an id the scripts accept (its flags' counts
-    and sizes are the schema's: checkpoint_file.Flags). Else a one-line UsageError naming what
+    and sizes are the schema's: flags.Flags). Else a one-line UsageError naming what
     is wrong. (`data`: the file's
     bytes, read already.)"""
     raw, table, data = read_checkpoint(path, flag, data)

@@ -1,5 +1,7 @@
 """The flags every script has: env-dependent defaults, the checks that turn a bad value into a
-one-line UsageError, and --precision."""
+one-line UsageError, --precision, and the schema of a checkpoint's flags (`Flags`: each a
+scalar, the counts and sizes within what the project offers a machine), to which the command
+line holds a run's own flags too."""
 
 from __future__ import annotations
 
@@ -8,20 +10,63 @@ import importlib.util
 import math
 import os
 import sys
-from typing import Any
+from typing import Annotated, Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 import tyro
+from pydantic import AfterValidator, ConfigDict, Field, ValidationError
+
+from .catch_state import MAX_ENVS, Strict
 
 OBSERVATION_SHAPE = (4, 84, 84)
 VALID_ENVS = "Catch-v0 or an ALE id such as BreakoutNoFrameskip-v4, PongNoFrameskip-v4"
 EVAL_EPISODES = 50  # the thesis's evaluation protocol
+MAX_STEP = 10**13  # a run's steps, and a checkpoint's
+MAX_WORKERS = 1024
 
 
 class UsageError(Exception):
     """A bad flag, or a missing, corrupt or incompatible checkpoint: exit 2 with one line."""
+
+
+def flag_value(value: Any) -> Any:
+    """A flag's value: a bool, a whole number of 64 bits, a finite number, a string, None."""
+    if value is None or isinstance(value, bool) or (isinstance(value, str) and len(value) < 4096):
+        return value
+    if isinstance(value, int) and -(1 << 63) <= value < 1 << 63:
+        return value
+    if isinstance(value, float) and math.isfinite(value):
+        return value
+    raise ValueError("not a bool, a 64-bit whole number, a finite number, a short string or null")
+
+
+def within(low: int, high: int) -> Any:
+    """A count or size a checkpoint's flags may ask of this machine (None: a flag newer than
+    the checkpoint, which gets its default)."""
+    return Annotated[int, Field(ge=low, le=high)] | None
+
+
+class Flags(Strict):
+    """A checkpoint's flags (the run's Args), each a scalar (their types are the script's, its
+    gate checks them); the counts and sizes within what the project offers this machine."""
+
+    model_config = ConfigDict(extra="allow")
+    __pydantic_extra__: dict[Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,63}$")],
+                             Annotated[Any, AfterValidator(flag_value)]]  # fmt: skip
+    num_workers: within(1, MAX_WORKERS) = None  # processes
+    envs_per_worker: within(1, MAX_ENVS) = None
+    eval_episodes: within(1, 10_000) = None  # envs, one per episode
+    t_max: within(1, 100_000) = None
+    total_timesteps: within(1, MAX_STEP) = None
+    eval_interval: within(1, MAX_STEP) = None
+    checkpoint_interval: within(1, MAX_STEP) = None
+    lstm_cells: within(1, 16_384) = None  # the scripts' own network sizes
+    prototypes_per_action: within(1, 4096) = None
+    lws_kcps: within(1, 4096) = None
+    lws_second_layer_maps: within(1, 4096) = None
+    ww_where_maps: within(0, 4096) = None
 
 
 def default_num_workers() -> int:
@@ -99,9 +144,24 @@ def resolve_defaults(args: Any) -> Any:
             "folder's name (<env>__<exp-name>__<seed>__<time>); --run-dir names a folder"
         )
     check_memory(args.num_workers, envs_per_worker, args.t_max)
+    check_within_checkpoint_bounds(args)
     if getattr(args, "track", False) and importlib.util.find_spec("wandb") is None:
         raise UsageError("--track needs wandb: pip install -e './agents[wandb]'")
     return args
+
+
+def check_within_checkpoint_bounds(args: Any) -> None:
+    """UsageError unless the flags' counts and sizes are within what a checkpoint may hold
+    (Flags, above: the bounds the gate applies to someone else's file): a
+    run the command line accepts writes checkpoints that it, and anyone, can resume."""
+    try:
+        Flags.model_validate({k: getattr(args, k) for k in Flags.model_fields if hasattr(args, k)})
+    except ValidationError as e:
+        error = e.errors()[0]
+        flag = "--" + str(error["loc"][0]).replace("_", "-")
+        rule = error["msg"].removeprefix("Input should be ")
+        raise UsageError(f"{flag} must be {rule} (got {error['input']}): the most a checkpoint "
+                         "holds") from None  # fmt: skip
 
 
 def check_memory(num_workers: int, envs_per_worker: int, t_max: int) -> None:
