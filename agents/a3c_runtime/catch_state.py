@@ -1,9 +1,11 @@
 """A worker's Catch games in a checkpoint (catch_env's vector env under its frame stacks, as
-`get_state()` gives it): their positions, episode sums and generators in the document, typed
-and bounded by `CatchGames` (a ball off the board or a start draw used past the buffer is no
-state the games reach, and the schema refuses it); the start draws and the stacks' older frames
+`get_state()` gives it): their positions and episode sums in the document, typed and bounded by
+`CatchGames` (a ball off the board or a start draw used past the buffer is no state the games
+reach, and the schema refuses it); their generators, start draws and the stacks' older frames
 (as bits: a pixel is on or off) as tensors. The canvas and each stack's newest frame are not
-stored: they are drawn from the positions on load, so a file cannot make them disagree."""
+stored: they are drawn from the positions on load, so a file cannot make them disagree. And a
+generator's state as a checkpoint holds any generator (a worker's too): its 37 bytes, every
+value of which is a PCG64 state (`generator_bytes`)."""
 
 import functools
 from typing import Annotated, Any
