@@ -144,7 +144,6 @@ def v3_fields(data: bytes) -> dict | None:
     if seal != hashlib.sha256(data.replace(seal_field(seal), seal_field(SEAL), 1)).hexdigest():
         raise ValueError("its bytes do not match the SHA-256 it was written with")  # (v4's seal)
     tensors = safetensors.torch.load(data)
-    decimal = lambda state: {**state, "state": {k: int(v) for k, v in state["state"].items()}}  # noqa: E731
     workers = {}
     for worker_id, worker in document["workers"].items():
         prefix = f"workers/{worker_id}/"
@@ -152,15 +151,20 @@ def v3_fields(data: bytes) -> dict | None:
         env = None
         if worker["env"] is not None:  # the wrapper's arrays at env/, the games' at env/env/
             inner = {n[len("env/env/") :]: t for n, t in own.items() if n.startswith("env/env/")}
-            inner["rngs"] = [decimal(s) for s in worker["env"]]
+            inner["rngs"] = [v3_generator(s) for s in worker["env"]]
             env = {"env": {**{k: own[f"env/{k}"] for k in ("stack", "returns", "lengths")},
                            "env": inner}}  # fmt: skip
         carried = tuple(own[f"lstm/{j}"] for j in range(sum(n.startswith("lstm/") for n in own)))
-        workers[int(worker_id)] = [{"bit_generator": decimal(worker["generator"])}, env,
+        workers[int(worker_id)] = [{"bit_generator": v3_generator(worker["generator"])}, env,
                                    own["frames"], *([carried] if carried else [])]  # fmt: skip
     fields = runtime_form(tensors, {**document, "workers": {}})  # its model and optimizer
     kept = {k: document[k] for k in ("script", "global_step", "wall_time", "args", "format")}
     return {**kept, **fields, "workers": workers}
+
+
+def v3_generator(state: dict) -> dict:
+    """A PCG64 state as v3 held it (its 128-bit words in decimal) as NumPy's."""
+    return {**state, "state": {k: int(v) for k, v in state["state"].items()}}
 
 
 def attributed(fields: dict) -> dict:
