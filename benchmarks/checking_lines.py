@@ -118,6 +118,7 @@ SAFETENSORS = {  # from 028bfec on
             "encode": "writing",
             "sealed": "writing",
             "seal_field": "the seal's form, written and read",
+            "seal_digest": "the seal's form: what its SHA-256 covers, written and read",
             "pcg64": "writing",
             "storage_bytes": "writing",
             "convert_command": SHARED_NOT_CHECKING["convert_command"],
