@@ -51,6 +51,13 @@ def run(script: str, *args: str, monkeypatch, capsys) -> Result:
     return Result(code, out, err)
 
 
+def test_checkpoint_gate_times_the_loads_of_a_checkpoint_with_every_part(monkeypatch, capsys):
+    result = run("checkpoint_gate.py", "--loads", "2", monkeypatch=monkeypatch, capsys=capsys)
+    assert result.returncode == 0, result.stderr
+    line = r"checkpoint gate: [\d.]+ ms a load of [\d.]+ MB \(2 loads\)\n"
+    assert re.fullmatch(line, result.stdout), result.stdout
+
+
 def test_env_throughput_reports_every_configuration(monkeypatch, capsys):
     result = run(
         "env_throughput.py",
