@@ -234,9 +234,8 @@ def problem_of(error: Exception) -> str:
 def read_tensors(data: bytes, document: dict, path: str) -> dict[str, Any]:
     """The tensors of a checkpoint's bytes (read_checkpoint's; their table already matched the
     network's), loaded by safetensors (which refuses bytes that are not where the table puts
-    them) and checked (finite: NaN or inf is a run that diverged; mean squares not negative; a
-    worker's Catch games in a state they reach, a3c_runtime.catch_state), in the form the
-    runtime holds them (runtime_form)."""
+    them) and checked (finite: NaN or inf is a run that diverged; mean squares not negative;
+    Catch's start draws in [0, 1)), in the form the runtime holds them (runtime_form)."""
     import safetensors.torch
 
     try:
