@@ -54,6 +54,8 @@ def main() -> int:
                         metavar=("NAME", "PATTERN", "COMMAND"))  # fmt: skip
     parser.add_argument("--out", help="also write the report to this file")
     args = parser.parse_args()
+    if args.out and not Path(args.out).resolve().parent.is_dir():  # before the runs, not after
+        parser.error(f"--out {args.out}: its folder does not exist")
     lines: list[str] = []
 
     def report(line: str) -> None:

@@ -4,8 +4,10 @@ RMSprop statistics, a pending evaluation's network, one worker with two Catch ga
 the seal, the schema, the tensor table against the network, the tensors and their values), in
 ms a load; one torch thread. Against another commit, in the same run:
 
-    python benchmarks/against_commit.py BASE --rounds 3 --out FILE \
-        --measure "gate" "^checkpoint gate: ([\\d.]+) ms" "python benchmarks/checkpoint_gate.py"
+    python benchmarks/against_commit.py BASE --rounds 3 --out FILE --measure "gate" \
+        "^checkpoint gate: ([\\d.]+) ms" "python $PWD/benchmarks/checkpoint_gate.py"
+
+(the script from this tree, the runtime and agents/a3c_ff.py from the tree it runs in).
 """
 
 from __future__ import annotations
@@ -17,8 +19,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,7 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     module = sys.modules.get("a3c_ff")  # (the script, once per process: its Args by name)
     if module is None:
-        spec = importlib.util.spec_from_file_location("a3c_ff", ROOT / "agents" / "a3c_ff.py")
+        agents = Path(runtime.__file__).resolve().parents[1]  # (the tree whose runtime runs)
+        spec = importlib.util.spec_from_file_location("a3c_ff", agents / "a3c_ff.py")
         module = sys.modules["a3c_ff"] = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
     flags = runtime.resolve_defaults(module.Args(num_workers=1, envs_per_worker=2))
