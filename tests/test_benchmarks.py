@@ -347,3 +347,13 @@ def test_against_commit_names_a_command_that_prints_no_figure(monkeypatch, capsy
                  "true", monkeypatch=monkeypatch, capsys=capsys)  # fmt: skip
     assert result.returncode == 1
     assert "printed no line matching '^never (\\\\d+)'" in result.stderr
+
+
+def test_against_commit_refuses_an_out_whose_folder_does_not_exist_before_any_run(
+    tmp_path, monkeypatch, capsys
+):
+    out = tmp_path / "missing" / "report.txt"
+    result = run("against_commit.py", "HEAD", "--out", str(out), "--measure", "x", r"^(\d+)",
+                 "false", monkeypatch=monkeypatch, capsys=capsys)  # fmt: skip
+    assert result.returncode == 2 and f"--out {out}: its folder does not exist" in result.stderr
+    assert not out.parent.exists()
