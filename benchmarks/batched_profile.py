@@ -30,8 +30,7 @@ sys.path[:0] = [str(ROOT / "agents"), str(ROOT)]
 from a3c_runtime import UsageError  # noqa: E402
 from a3c_runtime.batchable import BATCHED_SCRIPTS, resolve_run_args  # noqa: E402
 from a3c_runtime.batched import BatchedA3C, BatchedRun, set_up_device  # noqa: E402
-from a3c_tools import load_script  # noqa: E402
-from a3c_tools.batched import planned_args  # noqa: E402
+from a3c_tools import load_script, parsed_flags  # noqa: E402
 
 
 def sync(device: str) -> None:
@@ -63,7 +62,7 @@ def main() -> int:
             flags = [*args.flags, "--num-workers", "1", "--seed", str(1 + 1000 * i),
                      "--learning-rate", str(lr), "--total-timesteps", str(10**9)]  # fmt: skip
             try:
-                runs.append(BatchedRun(resolve_run_args(planned_args(module, flags))))
+                runs.append(BatchedRun(resolve_run_args(parsed_flags(module.Args, flags))))
             except UsageError as e:  # the script's flags, in one line
                 parser.error(str(e))
         built = time.time()

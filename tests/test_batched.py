@@ -27,7 +27,7 @@ from a3c_runtime import batched as runtime_batched
 from a3c_runtime.batchable import resolve_run_args
 from a3c_runtime.batched import BatchedA3C, BatchedRun, train_batched
 from a3c_runtime.snapshots import saved_state
-from a3c_tools import batched, sweep
+from a3c_tools import parsed_flags, sweep
 from a3c_tools.batched import probe, resumable_checkpoint
 from conftest import (
     FORK,
@@ -370,12 +370,12 @@ def batched_sweep(out, *extra, runs: int = 2, steps: int = 60):
         # a value the script's parser refuses: tyro's message, not its box's rules
         (
             ["--", "--activation", "tanh"],
-            "do not parse: invalid choice 'tanh' for argument "
-            "'--activation'. Expected one of ('relu', 'elu')",
+            "): invalid choice 'tanh' for argument '--activation'. Expected one of "
+            "('relu', 'elu'); nothing was run",
         ),
         (
             ["--", "--t-max", "x"],
-            "do not parse: Error parsing --t-max: invalid literal for int() with base 10: 'x'",
+            "): Error parsing --t-max: invalid literal for int() with base 10: 'x'",
         ),
     ],
 )
@@ -882,7 +882,7 @@ def test_runs_at_one_step_but_other_steps_of_their_episodes_are_batched_apart(tm
     runs = []
     for run, updates in zip(planned, (4, 2), strict=True):
         run_dir = out / "runs" / run.run_id
-        args = resolve_run_args(batched.planned_args(module, run.command(FF, run_dir)[1:]))
+        args = resolve_run_args(parsed_flags(module.Args, run.command(FF, run_dir)[1:]))
         train_batched(module, [BatchedRun(args)], should_stop=stop_after(updates))
         runs.append(args)
     path = out / "runs" / "run-0001" / "checkpoint.pt"

@@ -605,18 +605,46 @@ def test_a_flag_the_script_lacks_is_refused_before_anything_is_created(
     assert [row["status"] for row in read_table(out)] == ["ok"]
 
 
-def test_a_tyro_error_is_recorded_as_its_message(args_agent, tmp_path, capsys):
+def test_a_value_a_run_would_refuse_refuses_the_sweep_before_anything_is_created(
+    args_agent, tmp_path, capsys
+):
     out = tmp_path / "out"
     code = sweep.main([str(args_agent), "--out", str(out), "--runs", "1", "--sample",
                        "activation=choice:tanh"])  # fmt: skip
-    assert code == 1
-    [row] = read_table(out)
-    assert row["status"] == "failed"
-    assert row["error"] == (
-        "exit code 2: invalid choice 'tanh' for argument '--activation'. Expected one of "
-        "('relu', 'elu')."
+    assert code == 2 and not out.exists()
+    assert capsys.readouterr().err == (
+        "error: run-0000 (activation=tanh): invalid choice 'tanh' for argument '--activation'. "
+        "Expected one of ('relu', 'elu'); nothing was run\n"
     )
-    assert f"| {row['error']} |" in capsys.readouterr().out  # the console line, whole
+
+
+@pytest.mark.parametrize(
+    "script, flags, message",
+    [
+        (A3C, ["--", "--eval-interval", "-5"], "run-0000: --eval-interval must be > 0 (got -5)"),
+        (
+            A3C,
+            ["--sample", "gamma=uniform:0.5:1.5"],
+            "run-0001 (gamma=1.09943): --gamma must be in [0, 1] (got 1.09943)",
+        ),  # run-0000 draws 0.73
+        (A3C, ["--", "--precision", "tf32"], "run-0000: --precision tf32 is a GPU's"),
+        (
+            ROOT / "agents" / "a3c_glpq.py",
+            ["--sample", "tau=uniform:-1:1", "--", "--temperature", "fixed"],
+            "run-0000 (tau=-0.845764): --tau must be > 0",
+        ),  # the network's own check
+    ],
+)
+def test_an_agents_runs_are_checked_as_their_start_checks_them(
+    tmp_path, capsys, script, flags, message
+):
+    out = tmp_path / "out"
+    code = sweep.main([str(script), "--out", str(out), "--runs", "3", "--total-timesteps", "1000",
+                       *flags])  # fmt: skip
+    assert code == 2 and not out.exists()
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {message}") and err.endswith("; nothing was run\n")
+    assert err.count("\n") == 1
 
 
 def test_args_flags_are_read_as_tyro_spells_them(args_agent):

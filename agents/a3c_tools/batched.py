@@ -66,29 +66,21 @@ def clear_run_folder(folder: RunFolder) -> None:
             path.unlink()
 
 
-def planned_args(module: ModuleType, flags: list[str]) -> Any:
-    """A run's Args as its command line gives them (unresolved), or UsageError in one line."""
-    from a3c_tools import parsed_flags
-
-    try:
-        return parsed_flags(module.Args, flags)
-    except ValueError as e:
-        raise UsageError(f"the run flags {' '.join(flags)!r} do not parse: {e}") from None
-
-
-def check_batchable(script: str, runs: list[Any], out: Path, device: str = "cpu") -> None:
-    """UsageError (one line) unless the sweep's runs can be one batch on device: before
+def check_batchable(script: str, runs_args: list[Any] | None, device: str = "cpu") -> None:
+    """UsageError (one line) unless the sweep's runs (their parsed Args: a3c_tools.sweep's
+    checked_run_args; None for a script that is not an agent's) can be one batch on device: before
     anything runs."""
-    from a3c_tools import load_script
-
-    module = load_script(script)
-    runs_args = [planned_args(module, run.command(script, out / "runs" / run.run_id)[1:])
-                 for run in runs]  # fmt: skip
+    if runs_args is None:  # (no Args to batch: not an agent script)
+        raise UsageError(f"--backend batched runs the agent scripts, not {script}; use "
+                         "--backend local")  # fmt: skip
     problem = batch_problem(script, runs_args)
     if problem is not None:
         raise UsageError(problem)
     if runs_args[0].precision == "tf32" and device != "cuda":
         raise UsageError("--precision tf32 is a GPU's: it needs --device cuda")
+    from a3c_tools import load_script
+
+    module = load_script(script)
     probe(module, [resolve_run_args(copy.deepcopy(args)) for args in runs_args[:2]])
 
 
@@ -126,7 +118,7 @@ def run_batched(
     is recorded as the process backend records it; a stopped batch records nothing (its runs
     resume from their checkpoints on the next start). should_stop() names the signal that stops
     the sweep, or None."""
-    from a3c_tools import load_script
+    from a3c_tools import load_script, parsed_flags
     from a3c_tools.run_lock import IN_USE_TEXT, run_holder
 
     module = load_script(script)
@@ -136,7 +128,7 @@ def run_batched(
     try:
         for run in todo:
             run_dir = out / "runs" / run.run_id
-            args = resolve_run_args(planned_args(module, run.command(script, run_dir)[1:]))
+            args = resolve_run_args(parsed_flags(module.Args, run.command(script, run_dir)[1:]))
             try:  # before anything in the folder is read or changed
                 folder = RunFolder(run_dir)
             except UsageError as e:

@@ -21,7 +21,11 @@ lacks is refused (exit 2) with the nearest one it has ("--sample lr: a3c_ff.py h
 --lr; did you mean --learning-rate?"). An agent script's flags are its Args dataclass's fields,
 read by importing it (tyro's spellings: --learning-rate or --learning_rate, --no-x for a bool);
 a script without a top-level Args (an argparse script) is asked for its --help, and one whose
---help fails is not checked.
+--help fails is not checked. An agent script's runs are then checked as each run checks itself
+at its start (tyro's parse, the runtime's ranges, the network's own checks, --precision tf32 off
+a GPU): a run that would refuse to start refuses the sweep, in one line naming the run and its
+sampled values ("run-0001 (gamma=1.09943): --gamma must be in [0, 1] (got 1.09943); nothing was
+run"), exit 2, before anything is created.
 
 Runs. Run i (run id run-0000, run-0001, ...) is `python SCRIPT FIXED SAMPLED --total-timesteps T
 --seed SEED+1000*i --run-dir OUT/runs/run-000i` (no --total-timesteps when none is given: the
@@ -126,6 +130,7 @@ import argparse
 import ast
 import concurrent.futures
 import contextlib
+import copy
 import csv
 import ctypes
 import dataclasses
@@ -1158,8 +1163,9 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
     config = configuration(args, fixed)
     runs = plan_runs(config, args.runs)
     out = Path(args.out)
+    runs_args = checked_run_args(args.script, runs, out, args.backend)
     if args.backend == "batched":
-        check_batched(args, runs, out)
+        check_batched(args, runs_args)
     if args.dry_run:
         for run in runs:
             print(shlex.join(["python", *run.command(args.script, out / RUNS_DIR / run.run_id)]))
@@ -1181,7 +1187,54 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
         return run_sweep(args, out, runs, names)
 
 
-def check_batched(args: argparse.Namespace, runs: list[Run], out: Path) -> None:
+def checked_run_args(script: str, runs: list[Run], out: Path, backend: str) -> list | None:
+    """Each run's Args as its command line gives them (unresolved), for an agent script (None for
+    any other: its flags are checked by name only, check_flags). UsageError, in one line naming
+    the run and its sampled values, for a run that would refuse its own start: a value tyro
+    rejects, a number out of range (the runtime's resolve_defaults), a flag its network refuses
+    (a network built for each set of flags), --precision tf32 off a GPU."""
+    args_type = agent_args(Path(script))
+    if args_type is None:
+        return None
+    from a3c_tools import parsed_flags
+
+    agent = getattr(load_script(Path(script)), "AGENT", None)
+    runs_args, networks_built = [], set()
+    for run in runs:
+        sampled = " ".join(f"{k}={v}" for k, v in run.sampled.items())
+        where = f"{run.run_id}" + (f" ({sampled})" if sampled else "")
+        try:
+            flags = run.command(script, out / RUNS_DIR / run.run_id)[1:]
+            runs_args.append(parsed_flags(args_type, flags))
+        except ValueError as e:
+            raise UsageError(f"{where}: {str(e).rstrip('.')}; nothing was run") from None
+        if agent is not None:
+            check_run_start(agent, copy.deepcopy(runs_args[-1]), backend, networks_built, where)
+    return runs_args
+
+
+def check_run_start(
+    agent: typing.Any, args: typing.Any, backend: str, built: set, where: str
+) -> None:
+    """UsageError where a run with these (unresolved) Args would refuse its start, as the
+    runtime's train checks them before it creates anything."""
+    from a3c_runtime import UsageError as RunUsageError
+    from a3c_runtime.flags import probe_env, refuse_tf32, resolve_defaults
+
+    try:
+        resolved = resolve_defaults(args)
+        if backend != "batched":  # (a batch on a GPU takes tf32: check_batched)
+            refuse_tf32(resolved.precision)
+        # (a network's checks read its flags, never its seed or folder)
+        key = repr({k: v for k, v in vars(resolved).items() if k not in ("seed", "run_dir")})
+        if key not in built:
+            agent.build_network(probe_env(agent.make_env, resolved.env), resolved)
+            built.add(key)
+    except RunUsageError as e:
+        raise UsageError(f"{where}: {e}; nothing was run") from None
+
+
+def check_batched(args: argparse.Namespace, runs_args: list | None) -> None:
     """--backend batched: UsageError, before anything runs, for runs it cannot batch (another
     script, env or optimizer, several workers, flags that differ between runs other than the
     seed and the learning rate...) or a --device this machine lacks."""
@@ -1195,7 +1248,7 @@ def check_batched(args: argparse.Namespace, runs: list[Run], out: Path) -> None:
         if not torch.cuda.is_available():
             raise UsageError("--device cuda: torch sees no CUDA device here; use --device cpu")
     try:
-        check_batchable(args.script, runs, out, args.device)
+        check_batchable(args.script, runs_args, args.device)
     except RunUsageError as e:
         raise UsageError(str(e)) from None
 
