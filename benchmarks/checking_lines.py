@@ -114,6 +114,7 @@ SAFETENSORS = {  # from 028bfec on
         {
             "CHECKPOINT_FORMAT": SHARED_NOT_CHECKING["CHECKPOINT_FORMAT"],
             "OLDER_FORMATS": "the tags of the formats convert_checkpoint converts, for messages",
+            "OlderFormat": "older_format's refusal as a type, for the sweep's advice",
             "SEAL": "the seal's place, written and read",
             "encode": "writing",
             "sealed": "writing",

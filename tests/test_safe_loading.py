@@ -134,7 +134,8 @@ def test_a_payload_anywhere_in_a_checkpoint_never_runs(place, good, tmp_path, mo
             "--total-timesteps", "1000", "--", "--env", "Catch-v0"]  # fmt: skip
     result = run_main(sweep.main, argv)
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
-    assert "is not run-0000's to resume" in result.stderr and "older format" in result.stderr
+    assert "older format" in result.stderr and "is not run-0000's" not in result.stderr
+    assert "once it is converted, to resume run-0000, or move or remove" in result.stderr
     assert sorted(p.name for p in out.iterdir()) == ["runs"]  # nothing written
     assert (out / "runs" / "run-0000" / "checkpoint.pt").read_bytes() == before
     assert not marker.exists()

@@ -216,9 +216,13 @@ def read_checkpoint(
     return document, header.__pydantic_extra__, data
 
 
-def older_format(path: str, kind: str) -> UsageError:
+class OlderFormat(UsageError):
+    """A checkpoint of an older format: a3c_tools.convert_checkpoint converts it."""
+
+
+def older_format(path: str, kind: str) -> OlderFormat:
     """The refusal of a checkpoint of an older format, naming the command that converts it."""
-    return UsageError(f"checkpoint {path!r} is of the older format ({kind}), which is not loaded; "
+    return OlderFormat(f"checkpoint {path!r} is of the older format ({kind}), which is not loaded; "
                       f"if you trust it, convert it: {convert_command(path)}")  # fmt: skip
 
 

@@ -1278,6 +1278,7 @@ def foreign_checkpoint(script: str, run: Run, run_dir: Path) -> str | None:
     import tyro
     from a3c_runtime import UsageError as RunUsageError
     from a3c_runtime import load_checkpoint, resolve_defaults
+    from a3c_runtime.checkpoint_file import OlderFormat
     from a3c_runtime.resume import differing_flags
 
     try:
@@ -1286,6 +1287,9 @@ def foreign_checkpoint(script: str, run: Run, run_dir: Path) -> str | None:
         # --precision auto resolves by the CPU: a run continued on another host is still its own
         skip = ("precision",) if getattr(given, "precision", None) == "auto" else ()
         planned = resolve_defaults(given)
+    except OlderFormat as e:  # (the run's own, perhaps, from before the format changed)
+        return (f"{e}; nothing was run: start the sweep again once it is converted, to resume "
+                f"{run.run_id}, or move or remove {run_dir} to start that run afresh")  # fmt: skip
     except RunUsageError as e:
         reason = str(e)
     else:
