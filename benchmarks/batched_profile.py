@@ -63,7 +63,9 @@ def main() -> int:
                      "--learning-rate", str(lr), "--total-timesteps", str(10**9)]  # fmt: skip
             try:
                 runs.append(BatchedRun(resolve_run_args(parsed_flags(module.Args, flags))))
-            except UsageError as e:  # the script's flags, in one line
+            except ValueError as e:  # tyro's refusal, in one line
+                parser.error(f"the script's flags do not parse: {e}")
+            except UsageError as e:  # the runtime's
                 parser.error(str(e))
         built = time.time()
         batch = BatchedA3C(module, runs, args.device)

@@ -282,8 +282,11 @@ def planned_lines(options: argparse.Namespace) -> tuple[Line, Line]:
         mismatch = sweep.config_mismatch(out / side, config)
         if mismatch:
             raise UsageError(mismatch)
-        if options.backend == "batched":  # both lines checked before either runs
-            sweep.check_batched(sweep_args, sweep.plan_runs(config, options.runs), out / side)
+        # both lines' runs checked before either runs, as each run checks itself at its start
+        runs = sweep.plan_runs(config, options.runs)
+        runs_args = sweep.checked_run_args(str(script), runs, out / side, options.backend)
+        if options.backend == "batched":
+            sweep.check_batched(sweep_args, runs_args)
         lines.append(Line(side, label(script, flags), out / side, argv, config))
     if options.backend == "ray" and importlib.util.find_spec("ray") is None:
         raise UsageError(sweep.RAY_MISSING)
