@@ -41,7 +41,7 @@ from conftest import (
     shared_for,
     tiny_args,
 )
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from catch_env.torch_catch import NumpyStateView, TorchCatchVectorEnv
@@ -987,6 +987,7 @@ def test_stacked_rmsprop_is_the_runtimes_rmsprop_of_each_run_at_its_learning_rat
     logits=st.lists(st.tuples(*[st.floats(-20, 20)] * 3), min_size=1, max_size=8),
     uniforms=st.lists(st.floats(0, 1, exclude_max=True), min_size=8, max_size=8),
 )
+@example(logits=[(0.0, -2.00001, -16.75)], uniforms=[0.9999999999999999] + [0.0] * 7)
 def test_the_batchs_action_draws_are_the_workers(logits, uniforms):
     """The runtime's one sample_actions, which the worker calls on NumPy arrays and the batched
     backend on tensors, draws the same actions from the same probabilities and uniforms; and
@@ -999,6 +1000,30 @@ def test_the_batchs_action_draws_are_the_workers(logits, uniforms):
     expected = sample_actions(log_probs.exp().numpy(), u)
     got = sample_actions(log_probs.exp(), torch.from_numpy(u))
     np.testing.assert_array_equal(got.numpy(), expected)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    logits=st.integers(2, 18).flatmap(
+        lambda a: st.lists(
+            st.lists(st.floats(-20, 20), min_size=a, max_size=a), min_size=1, max_size=16
+        )  # fmt: skip
+    ),
+    at=st.integers(0, 17),
+)
+@example(logits=[[0.0, -2.00001, -16.75]], at=1)  # hypothesis's find: torch.cumsum's last bit
+def test_the_draws_are_the_same_on_tensors_at_the_cdfs_edges(logits, at):
+    """Uniforms on the edges of the cumulative sums (u = cdf[k] / cdf[-1], where one bit of a
+    sum flips the draw), any number of actions: the same actions from tensors as from NumPy
+    arrays (torch's cumsum, which accumulates in float64, drew others)."""
+    from a3c_runtime import sample_actions
+
+    probs = torch.softmax(torch.tensor(logits, dtype=torch.float32), dim=1)
+    cdf = np.cumsum(probs.numpy(), axis=1)
+    k = min(at, probs.shape[1] - 1)
+    u = np.nextafter(cdf[:, k].astype(np.float64) / cdf[:, -1], 0.0).clip(0, np.nextafter(1, 0))
+    expected = sample_actions(probs.numpy(), u)
+    np.testing.assert_array_equal(sample_actions(probs, torch.from_numpy(u)).numpy(), expected)
 
 
 def test_the_lstm_scripts_cell_is_torchs_lstm_cell_and_runs_under_vmap():

@@ -112,7 +112,11 @@ def sample_actions(probs: Any, uniforms: Any) -> Any:
     overhead) or on tensors (the batched backend's, on its device), the same code for both: the
     float32 cumulative sums compared in float64, as both promote them, so the same probabilities
     and uniforms draw the same actions. An action of probability 0 is never drawn."""
-    cdf = probs.cumsum(1)
+    # the sums taken left to right in float32, in place on a copy: np.cumsum's order, which
+    # torch's cumsum (accumulating in float64 on the CPU) does not keep in its last bit
+    cdf = probs * 1
+    for k in range(1, probs.shape[1]):
+        cdf[:, k] += cdf[:, k - 1]
     return (cdf <= uniforms[:, None] * cdf[:, -1:]).sum(1).clip(max=probs.shape[1] - 1)
 
 
