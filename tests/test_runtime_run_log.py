@@ -54,14 +54,13 @@ def test_a_failed_evaluation_row_is_taken_back_and_named(tmp_path, monkeypatch, 
 def test_the_closing_line_labels_the_last_evaluation_truthfully(outcome, label, tmp_path, capsys):
     """A run stopped by a signal takes no final evaluation: its last one (here step 0's) is
     not the final one, as the closing line once said ("final eval 0.140 at step 0")."""
-    from a3c_runtime.a3c import summarize
+    from a3c_runtime.run_log import summarize
 
     log = runtime.RunLog(tmp_path, SimpleNamespace(total_timesteps=10**6), wall_offset=0.0)
     log.evaluation({"global_step": 0, "scores": [0.0, 0.28], "seconds": 0.1})
     log.close()
     capsys.readouterr()
-    shared = SimpleNamespace(global_step=lambda: 44_430)
-    summary = summarize(outcome, 1000.0, shared, log, tmp_path)
+    summary = summarize(outcome, 1000.0, 44_430, log, tmp_path)
     line = capsys.readouterr().out
     assert line.startswith(f"{outcome}: {label} 0.140 at step 0 |"), line
     assert "| 44,430 steps |" in line and summary["final_eval_step"] == 0
@@ -99,13 +98,13 @@ def test_the_progress_line_gives_the_mean_return_of_the_episodes_ended_in_its_in
 def test_a_resumed_runs_closing_line_gives_this_parts_time_beside_the_runs(tmp_path, capsys):
     """A resumed run's wall time is its own clock, the earlier parts included; this part's time
     is the time since this process started it."""
-    from a3c_runtime.a3c import summarize
+    from a3c_runtime.run_log import summarize
 
     log = runtime.RunLog(tmp_path, SimpleNamespace(total_timesteps=10**6), wall_offset=100.0)
     log.start -= 30.0  # this part began 30 s ago
     log.close()
     capsys.readouterr()
-    summary = summarize("done", 1000.0, SimpleNamespace(global_step=lambda: 10), log, tmp_path)
+    summary = summarize("done", 1000.0, 10, log, tmp_path)
     assert summary["part_time_s"] == pytest.approx(30.0, abs=2.0)
     assert summary["wall_time_s"] == pytest.approx(130.0, abs=2.0)
     assert "wall time 2m10s (this part 0m30s, its evaluations" in capsys.readouterr().out

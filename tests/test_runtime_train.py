@@ -80,9 +80,9 @@ def test_a_resumed_runs_steps_per_second_count_this_parts_steps_only(tmp_path, m
     seen = {}
     summarize = a3c.summarize
 
-    def recorded(outcome, sps, shared, log, run_dir):
-        seen.update(sps=sps, steps=shared.global_step() - start, seconds=time.time() - log.start)
-        return summarize(outcome, sps, shared, log, run_dir)
+    def recorded(outcome, sps, global_step, log, run_dir):
+        seen.update(sps=sps, steps=global_step - start, seconds=time.time() - log.start)
+        return summarize(outcome, sps, global_step, log, run_dir)
 
     monkeypatch.setattr(a3c, "summarize", recorded)
     code, err = main_exit(module, ["--resume", str(path)], monkeypatch, capsys)

@@ -36,7 +36,7 @@ from .flags import UsageError, probe_env, refuse_tf32, resolve_defaults
 from .hogwild import Shared, annealed_lr, seed_everything
 from .resume import given_flags, resumed_args
 from .run_folder import RunFolder, resume_folder, run_folder_path
-from .run_log import RunLog, format_seconds, last_evaluation, logged_steps
+from .run_log import RunLog, last_evaluation, logged_steps, summarize
 from .snapshots import CHECKPOINT, EVALUATE, copy_of
 from .supervision import FORK, RunFailed, Supervisor
 
@@ -120,7 +120,7 @@ def train(
         # the evaluator has ended: requests it never read (a run stopped while it was behind)
         # must not hold this process at its exit, its queue's thread waiting for a reader
         requests.cancel_join_thread()
-    return summarize(outcome, sps, shared, log, run_dir)
+    return summarize(outcome, sps, shared.global_step(), log, run_dir)
 
 
 def watch(
@@ -255,41 +255,6 @@ def finished_summary(checkpoint: Checkpoint, args: Any, run_dir: Path) -> dict:
         "wall_time_s": checkpoint.wall_time, "part_time_s": 0.0, "eval_time_s": 0.0,
         "sps": 0.0,
     }  # fmt: skip
-
-
-def summarize(outcome: str, sps: float, shared: Shared, log: RunLog, run_dir: Path) -> dict:
-    """The run's summary, and its closing line on the console."""
-    global_step, last = shared.global_step(), log.last_eval
-    summary = {
-        "outcome": outcome,
-        "run_dir": str(run_dir),
-        "global_step": global_step,
-        "final_eval": last["mean_return"] if last else float("nan"),
-        "final_eval_step": last["global_step"] if last else None,
-        "wall_time_s": log.wall_time(),  # the run's own clock, its parts before --resume included
-        "part_time_s": time.time() - log.start,
-        "eval_time_s": log.eval_seconds,
-        "sps": sps,
-    }
-    # "final" only for the evaluation after the last update; a run stopped early (a signal)
-    # took none, and its last one may be step 0's
-    label = "final eval" if outcome in ("done", "time limit") else "last eval"
-    eval_text = (
-        f"{label} {last['mean_return']:.3f} at step {last['global_step']:,}"
-        if last
-        else "no evaluation"
-    )
-    # a resumed run's evaluation time is this part's only, so it is named as such
-    evals = f"evaluations {format_seconds(log.eval_seconds)}"
-    if log.wall_offset:
-        evals = f"this part {format_seconds(summary['part_time_s'])}, its {evals}"
-    print(
-        f"{outcome}: {eval_text} | wall time {format_seconds(summary['wall_time_s'])} "
-        f"({evals}) | SPS {sps:,.0f} | "
-        f"{global_step:,} steps | {run_dir}",
-        flush=True,
-    )
-    return summary
 
 
 @contextlib.contextmanager

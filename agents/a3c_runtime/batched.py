@@ -46,7 +46,7 @@ from .hogwild import (
     seed_everything,
 )
 from .run_folder import RunFolder
-from .run_log import RunLog, logged_steps
+from .run_log import RunLog, logged_steps, summarize
 from .snapshots import MarkClock, restored_state, saved_state
 from .stacked_convs import matmul_convs
 
@@ -377,18 +377,17 @@ def train_batched(
             consoles.append(open(folders[-1].path / "stdout.log", "a"))  # noqa: SIM115
             logs.append(RunLog(folders[-1].path, run.args, batch.wall_offsets[len(logs)],
                                resumed_step=batch.step_count, console=consoles[-1]))  # fmt: skip
+        start_step = batch.step_count
         stopped_by = train_logged(batch, [f.path for f in folders], logs, should_stop,
                                   log_interval)  # fmt: skip
         outcomes = []
-        for log, console, folder in zip(logs, consoles, folders, strict=True):
+        for log, folder in zip(logs, folders, strict=True):
             log.close()
-            last = log.last_eval or {"global_step": batch.step_count, "mean_return": float("nan")}
+            sps = (batch.step_count - start_step) / max(time.time() - log.start, 1e-9)
             outcome = f"stopped by {stopped_by}" if stopped_by else "done"
-            line = (f"{outcome}: {'last' if stopped_by else 'final'} eval "
-                    f"{last['mean_return']:.3f} at step {last['global_step']:,} | batched with "
-                    f"{len(logs)} runs | {batch.step_count:,} steps | {folder.path}")  # fmt: skip
-            console.write(line + "\n")
-            outcomes.append({"outcome": outcome, "wall_time_s": log.wall_time(), "stdout": line})
+            summary = summarize(outcome, sps, batch.step_count, log, folder.path, len(logs))
+            outcomes.append({"outcome": outcome, "wall_time_s": summary["wall_time_s"],
+                             "stdout": summary["closing_line"]})  # fmt: skip
         return outcomes
     except BaseException:
         for log in logs:

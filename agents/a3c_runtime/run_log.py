@@ -239,3 +239,41 @@ class RunLog:
             if self.wandb is not None:
                 self.wandb.finish()
                 self.wandb = None
+
+
+def summarize(
+    outcome: str, sps: float, global_step: int, log: RunLog, run_dir: Path, batch: int = 0
+) -> dict:
+    """The run's summary, and its closing line on the log's console (the batched backend's runs:
+    each its stdout.log, naming the `batch` size), also its "closing_line"."""
+    last = log.last_eval
+    summary = {
+        "outcome": outcome,
+        "run_dir": str(run_dir),
+        "global_step": global_step,
+        "final_eval": last["mean_return"] if last else float("nan"),
+        "final_eval_step": last["global_step"] if last else None,
+        "wall_time_s": log.wall_time(),  # the run's own clock, its parts before --resume included
+        "part_time_s": time.time() - log.start,
+        "eval_time_s": log.eval_seconds,
+        "sps": sps,
+    }
+    # "final" only for the evaluation after the last update; a run stopped early (a signal)
+    # took none, and its last one may be step 0's
+    label = "final eval" if outcome in ("done", "time limit") else "last eval"
+    eval_text = (
+        f"{label} {last['mean_return']:.3f} at step {last['global_step']:,}"
+        if last
+        else "no evaluation"
+    )
+    # a resumed run's evaluation time is this part's only, so it is named as such
+    evals = f"evaluations {format_seconds(log.eval_seconds)}"
+    if log.wall_offset:
+        evals = f"this part {format_seconds(summary['part_time_s'])}, its {evals}"
+    batched = f" | batched with {batch} runs" if batch else ""
+    summary["closing_line"] = (
+        f"{outcome}: {eval_text} | wall time {format_seconds(summary['wall_time_s'])} "
+        f"({evals}) | SPS {sps:,.0f}{batched} | {global_step:,} steps | {run_dir}"
+    )
+    print(summary["closing_line"], file=log.console, flush=True)
+    return summary
