@@ -154,6 +154,10 @@ MUTANTS = [
     Mutant("sample-zero-probability", "sampling can draw an action of probability 0", HOGWILD,
            "cdf <= uniforms[:, None] * cdf[:, -1:]", "cdf < uniforms[:, None] * cdf[:, -1:]",
            (BATCHED,)),
+    Mutant("sample-cumsum-torch-order", "the cumulative sums by cumsum, which torch takes in "
+           "float64: a batch draws another action than the worker at a cdf's edge", HOGWILD,
+           "    cdf = probs * 1\n    for k in range(1, probs.shape[1]):\n"
+           "        cdf[:, k] += cdf[:, k - 1]\n", "    cdf = probs.cumsum(1)\n", (BATCH_T,)),
     Mutant("act-without-randomness", "the workers act with u = 0: always the first action "
            "of nonzero probability, not a sample of pi", ALL,
            "sample_actions(log_probs.float().exp().numpy(), rng.random(num_envs))",
