@@ -30,7 +30,8 @@ repository (installed with `pip install -e "./agents[tools]"`), with `--help`:
 `batched` is the sweep's side of the batched backend (`--backend batched`: its runs checked
 before anything runs, and the sweep's runs as batches of the runtime's a3c_runtime.batched,
 docs/reproducing.md). Shared by the tools: `read_toml` (their data files, one line on a bad
-one) and `parsed_flags` (a script's flags, tyro's error on one line).
+one), `parsed_flags` (a script's flags, tyro's error on one line) and `tool_parser` (a tool's
+command line, named as it is run).
 
 Nothing runs at import; the tools' own dependencies (matplotlib, scipy, rliable) are the `tools`
 extra.
@@ -38,6 +39,7 @@ extra.
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import os
 import sys
@@ -142,6 +144,14 @@ def parsed_flags(args_type: type, flags: list[str], prog: str | None = None) -> 
             return tyro.cli(args_type, args=flags, prog=prog)
     except SystemExit:
         raise ValueError(tyro_message(err.getvalue()) or "see --help") from None
+
+
+def tool_parser(tool: str, description: str, **kw: Any) -> argparse.ArgumentParser:
+    """The command line of `python -m a3c_tools.<tool>`, with its description (and argparse's
+    other arguments, `kw`)."""
+    return argparse.ArgumentParser(
+        prog=f"python -m a3c_tools.{tool}", description=description, **kw
+    )
 
 
 def run_main(main: Callable[[], int | None]) -> NoReturn:

@@ -197,11 +197,6 @@ def by_id(figure: str) -> Figure:
     return next(each for each in data().figures if each.id == figure)
 
 
-def figure_id(text: str) -> str | None:
-    """fig6.9, Fig6.9, 6.9, figure6.9 -> fig6.9; None when there is no such figure."""
-    return figure_sweeps.figure_id(text, figure_ids())
-
-
 # ------------------------------------------------------------------------------------------------
 # Runs
 # ------------------------------------------------------------------------------------------------

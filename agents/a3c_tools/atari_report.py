@@ -30,7 +30,6 @@ evaluation, an unknown game) is one line, exit code 2.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import os
@@ -40,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ATARI_REPORT_CONFIG, ROOT, read_toml, run_main
+from a3c_tools import ATARI_REPORT_CONFIG, ROOT, read_toml, run_main, tool_parser
 from a3c_tools.paired import MIN_PAIRS
 
 CONFIG = ATARI_REPORT_CONFIG
@@ -295,12 +294,11 @@ def plot_profile(lines: list[Line], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.atari_report",
-        description="The Atari lines across seeds and games: the IQM and mean of "
-        "human-normalised scores, per game the mean over seeds, each mean with a 95% "
-        "Student-t interval over seeds (none below 3 seeds, none for the IQM), and a "
-        "performance-profile figure.",
+    parser = tool_parser(
+        "atari_report",
+        "The Atari lines across seeds and games: the IQM and mean of human-normalised scores, "
+        "per game the mean over seeds, each mean with a 95% Student-t interval over seeds (none "
+        "below 3 seeds, none for the IQM), and a performance-profile figure.",
     )
     parser.add_argument(
         "--config", type=Path, default=CONFIG, help="the lines (default: atari_report.toml)"

@@ -127,9 +127,10 @@ def flag_value(words: list[str], *names: str) -> str | None:
     return None
 
 
-def workers(row: dict) -> int:
+def cpu_hours(row: dict) -> float:
+    """A run's CPU-hours: its wall time times its workers (its --num-workers, else 1)."""
     value = flag_value(shlex.split(row.get("flags") or ""), "--num-workers", "--num_workers")
-    return 1 if value is None else int(value)
+    return float(row["wall_time_s"] or 0) * (1 if value is None else int(value)) / 3600
 
 
 def begun_steps(sweep: Sweep, rows: list[dict]) -> list[int]:
@@ -344,10 +345,8 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
             seen.add(sweep.out)
             rows = read_rows(sweep.out)
             new_rows = rows[sweep.first_look :][: sweep.runs - sweep.first_look]
-            cost = [float(r["wall_time_s"] or 0) * workers(r) / 3600 for r in rows]
-            known = cost or [
-                float(r["wall_time_s"] or 0) * workers(r) / 3600 for r in read_rows(sweep.source)
-            ]
+            cost = [cpu_hours(r) for r in rows]
+            known = cost or [cpu_hours(r) for r in read_rows(sweep.source)]
             per_run = sum(known) / len(known) if known else (item.cpu_hours_per_run or 0.0)
             done += len(new_rows)
             plan += max(sweep.runs - sweep.first_look, 0)
@@ -379,11 +378,7 @@ def repeat_report(items: list[Item], plan: Path) -> str:
         if entry["kind"] != "repeat":
             continue
         again, before = read_rows(Path(entry["out"])), read_rows(Path(entry["source"]))
-        if not again:
-            report.append(f"- {entry['id']}: not run yet")
-            continue
-        index = int(entry.get("run", 0))
-        if len(again) <= index:
+        if not again or len(again) <= (index := int(entry.get("run", 0))):
             report.append(f"- {entry['id']}: not run yet")
             continue
         a, b = float(again[index]["score"]), float(before[index]["score"])

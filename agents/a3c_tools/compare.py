@@ -358,10 +358,7 @@ def answer(call: str, effect: float, expect: str, margin: float) -> str:
 
 def learning_rates(line: Line) -> dict[str, float]:
     """run_id -> the run's sampled learning rate, where its table has one."""
-    if not line.table.is_file():
-        return {}
-    with open(line.table, newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = paired.read_rows(line.folder, sweep.TABLE_NAME)
     return {row["run_id"]: float(row["learning-rate"]) for row in rows if row.get("learning-rate")}
 
 

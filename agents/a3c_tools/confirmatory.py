@@ -36,7 +36,6 @@ and the CPU-hours those runs would take (`steps`, `num_workers` and `rate_from` 
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import sys
@@ -45,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import ROOT, read_toml, results_folder, run_main
+from a3c_tools import ROOT, read_toml, results_folder, run_main, tool_parser
 from a3c_tools import atari_figures as af
 from a3c_tools.paired import (
     MARGIN,
@@ -56,7 +55,6 @@ from a3c_tools.paired import (
     p_value,
     power,
     read_rows,
-    read_scores,
     runs_for_power,
 )
 
@@ -64,20 +62,21 @@ PLAN = ROOT / "results" / "confirmatory" / "plan.toml"
 STRIDE = 1000  # sweep.py's and atari_figures' run seeds: seed + 1000 i
 
 
-def catch_differences(spec: dict) -> np.ndarray:
-    """The committed paired differences (line - baseline, or the lines' mean - baseline) over
-    runs 0..runs-1 of a Catch spec."""
+def catch_pairs(spec: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A Catch spec's committed pairs, over the runs 0..runs-1 that its baseline and every line
+    finished: (learning rates, nan where the baseline's table has none; baseline scores; the
+    lines' scores (lines, n); the differences, line - baseline or the lines' mean - baseline)."""
+    base, *lines = (
+        {row["run_id"]: row for row in read_rows(ROOT / results_folder(f, ROOT))
+         if row["status"] == "ok"}
+        for f in [spec["baseline"], *spec.get("lines", [spec.get("line")])]
+    )  # fmt: skip
     ids = [f"run-{i:04d}" for i in range(int(spec["runs"]))]
-    base = read_scores(ROOT / results_folder(spec["baseline"], ROOT) / "results.csv")
-    lines = [
-        read_scores(ROOT / results_folder(f, ROOT) / "results.csv")
-        for f in spec.get("lines", [spec.get("line")])
-    ]
     ids = [i for i in ids if i in base and all(i in line for line in lines)]
-    if not ids:
-        return np.array([])
-    other = np.array([[line[i] for i in ids] for line in lines]).mean(axis=0)
-    return other - np.array([base[i] for i in ids])
+    rates = np.array([float(base[i].get("learning-rate") or "nan") for i in ids])
+    b = np.array([float(base[i]["score"]) for i in ids])
+    x = np.array([[float(line[i]["score"]) for i in ids] for line in lines])
+    return rates, b, x, x.mean(axis=0) - b
 
 
 def complete(spec: dict, runs: int) -> bool:
@@ -212,7 +211,7 @@ def atari_differences(spec: dict) -> np.ndarray:
 
 
 def differences(spec: dict) -> np.ndarray:
-    return atari_differences(spec) if "atari" in spec else catch_differences(spec)
+    return atari_differences(spec) if "atari" in spec else catch_pairs(spec)[3]
 
 
 @dataclass(frozen=True)
@@ -293,11 +292,10 @@ def committed_seeds(root: Path = ROOT / "results", own: tuple[Path, ...] = ()) -
     for table in root.rglob("results.csv"):
         if any(table.is_relative_to(folder) for folder in own):
             continue
-        with open(table, newline="") as f:
-            for row in csv.DictReader(f):
-                value = (row.get("seed") or "").strip()
-                if value.lstrip("-").isdigit():
-                    seeds.add(int(value))
+        for row in read_rows(table.parent):
+            value = (row.get("seed") or "").strip()
+            if value.lstrip("-").isdigit():
+                seeds.add(int(value))
     return seeds
 
 
@@ -440,9 +438,7 @@ def table(plan: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.confirmatory", description=__doc__.split("\n")[0]
-    )
+    parser = tool_parser("confirmatory", __doc__.split("\n")[0])
     parser.add_argument("plan", type=Path, nargs="?", default=PLAN, help="the plan (TOML)")
     parser.add_argument(
         "--check", action="store_true",

@@ -12,12 +12,12 @@ first).
 from __future__ import annotations
 
 import ast
-import csv
 import re
 from pathlib import Path
 
 from a3c_tools import run_main
 from a3c_tools.future_work_runs import folder_argument
+from a3c_tools.paired import read_rows
 
 CONFIGS = ("lpq_growth", "glpq_growth")
 LINE = re.compile(
@@ -37,8 +37,7 @@ def growth_rows(folder: Path) -> list[str]:
     """One line per finished run of each growth configuration in folder."""
     rows = []
     for config in configs_run(folder):
-        with open(folder / config / "results.csv", newline="") as f:
-            finished = sorted(r["run_id"] for r in csv.DictReader(f) if r["status"] == "ok")
+        finished = sorted(r["run_id"] for r in read_rows(folder / config) if r["status"] == "ok")
         for run_id in finished:
             log = folder / config / "runs" / run_id / "stdout.log"
             steps = [m for m in map(LINE.search, log.read_text().splitlines()) if m]

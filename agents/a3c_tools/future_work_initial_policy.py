@@ -10,12 +10,10 @@ and the policy on 512 other states of random play (seed 5).
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
 
-from a3c_tools import AGENTS, load_script, run_main
+from a3c_tools import AGENTS, load_script, run_main, tool_parser
 
 SCRIPTS = (
     ("uniform", AGENTS / "a3c_glpq.py"),
@@ -59,10 +57,8 @@ def initial_policy_rows() -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argparse.ArgumentParser(
-        prog="python -m a3c_tools.future_work_initial_policy",
-        description="GLPQ's initial policy on Catch with the thesis's and the data's prototypes.",
-    ).parse_args(argv)
+    about = "GLPQ's initial policy on Catch with the thesis's and the data's prototypes."
+    tool_parser("future_work_initial_policy", about).parse_args(argv)
     print(HEADER)
     for row in initial_policy_rows():
         print(row)

@@ -6,11 +6,10 @@ folders are not committed), results/future_work_catch unless the command line na
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from a3c_tools import ROOT
+from a3c_tools import ROOT, tool_parser
 
 FOLDER = ROOT / "results" / "future_work_catch"
 
@@ -24,7 +23,7 @@ def folder_argument(
     """An analysis's command line: its one argument, the configurations' folder. It must be a
     folder, holding run folders for the configurations with_runs(folder) names; where not,
     argparse's one-line error, exit 2."""
-    parser = argparse.ArgumentParser(prog=f"python -m a3c_tools.{tool}", description=description)
+    parser = tool_parser(tool, description)
     parser.add_argument(
         "folder",
         nargs="?",

@@ -21,6 +21,7 @@ import numpy as np
 
 from a3c_tools import run_main
 from a3c_tools.future_work_runs import folder_argument
+from a3c_tools.paired import read_scores
 
 # (panel title, [(baseline, variant), ...]): each idea against the thesis's version of its script
 PANELS = [
@@ -42,15 +43,6 @@ FALL_BACK = 0.1  # print_fall_back: a score this far below the run's best evalua
 COLOURS = {"lpq": ("C0", "C1"), "glpq": ("C2", "C3"), "lws": ("C4", "C5")}
 
 
-def run_scores(folder: Path, config: str) -> dict[str, float]:
-    """run_id -> score of the finished runs of one configuration ({} if none)."""
-    path = folder / config / "results.csv"
-    if not path.is_file():
-        return {}
-    with open(path, newline="") as f:
-        return {r["run_id"]: float(r["score"]) for r in csv.DictReader(f) if r["status"] == "ok"}
-
-
 def gather_curves(folder: Path) -> list[dict[str, str]]:
     """Rows (config, run_id, global_step, mean_return), from runs/ or else from curves.csv."""
     saved: list[dict[str, str]] = []
@@ -59,7 +51,7 @@ def gather_curves(folder: Path) -> list[dict[str, str]]:
             saved = list(csv.DictReader(f))
     rows = []
     for config in CONFIGS:
-        for run_id in sorted(run_scores(folder, config)):
+        for run_id in sorted(read_scores(folder / config / "results.csv")):
             path = folder / config / "runs" / run_id / "evaluations.csv"
             if path.is_file():
                 with open(path, newline="") as f:
@@ -137,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---:|---|---|")
     finished = {}
     for config in CONFIGS:
-        scores = run_scores(folder, config)
+        scores = read_scores(folder / config / "results.csv")
         finished[config] = len(scores)
         if not scores:
             print(f"| {config} | 0 | not run yet | |")

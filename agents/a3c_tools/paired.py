@@ -61,9 +61,9 @@ RANDOM_SLACK = {CATCH: 0.1}  # a run within this of random play has not learned 
 # the game's human - random range)
 
 
-def read_rows(out: Path) -> list[dict]:
-    """The rows of a sweep folder's results.csv, every status ([] before its first run)."""
-    path = out / "results.csv"
+def read_rows(out: Path, table: str = "results.csv") -> list[dict]:
+    """The rows of a sweep folder's results.csv (or `table`), every status ([] before any)."""
+    path = out / table
     if not path.is_file():
         return []
     with path.open(newline="") as f:
@@ -73,12 +73,8 @@ def read_rows(out: Path) -> list[dict]:
 def read_scores(table: Path, column: str = "score") -> dict[str, float]:
     """run_id -> score of the finished (ok) runs of a sweep's results.csv ({} if there is none):
     the mean of the final 5 evaluations, or with column "score_all" the mean of all of them."""
-    if not table.is_file():
-        return {}
-    with open(table, newline="") as f:
-        return {
-            row["run_id"]: float(row[column]) for row in csv.DictReader(f) if row["status"] == "ok"
-        }
+    rows = read_rows(table.parent, table.name)
+    return {row["run_id"]: float(row[column]) for row in rows if row["status"] == "ok"}
 
 
 @functools.lru_cache(maxsize=8)

@@ -10,7 +10,6 @@ the figure has no wall-time axis. --threshold draws a horizontal line (e.g.
 labelled dotted line, such as random play's score on an Atari game.
 """
 
-import argparse
 import csv
 import sys
 from pathlib import Path
@@ -21,7 +20,7 @@ import numpy as np
 matplotlib.use("Agg")  # files only; no display needed
 import matplotlib.pyplot as plt  # noqa: E402
 
-from a3c_tools import run_main
+from a3c_tools import run_main, tool_parser
 
 COLUMNS = ("global_step", "wall_time_s", "mean_return", "std_return", "episodes")
 
@@ -107,9 +106,7 @@ def plot(paths: list[Path], labels: list[str], output: Path, threshold: float | 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.plot_evaluations", description=__doc__.split("\n")[0]
-    )
+    parser = tool_parser("plot_evaluations", __doc__.split("\n")[0])
     parser.add_argument("csv", nargs="+", type=Path, help="evaluations.csv files")
     parser.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
     parser.add_argument("--labels", nargs="+", help="one legend label per file")

@@ -38,9 +38,7 @@ Figure A.1) is drawn as a map instead: one panel per table, each run a point at
 
 from __future__ import annotations
 
-import argparse
 import csv
-import json
 import math
 import sys
 import textwrap
@@ -48,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import run_main
+from a3c_tools import run_main, sweep, tool_parser
 
 GRID_POINTS = 50  # the thesis interpolated onto np.linspace(lo, hi), 50 points
 SAVGOL_WINDOW = 5
@@ -60,21 +58,10 @@ def savgol(y: np.ndarray, window: int = SAVGOL_WINDOW, order: int = SAVGOL_ORDER
     polynomial of degree `order` through the `window` points centred on it; the first and last
     window // 2 points take the values of the polynomial fitted to the first or last `window`
     points (scipy.signal.savgol_filter's mode="interp"). Fewer points than `window`: unchanged."""
+    from scipy.signal import savgol_filter
+
     y = np.asarray(y, dtype=float)
-    if len(y) < window:
-        return y.copy()
-    half = window // 2
-    offsets = np.arange(-half, half + 1, dtype=float)
-    # row 0 of the pseudo-inverse of the Vandermonde matrix maps the window to the fit's value
-    # at offset 0
-    coefficients = np.linalg.pinv(np.vander(offsets, order + 1, increasing=True))[0]
-    smoothed = y.copy()
-    smoothed[half:-half] = np.convolve(y, coefficients[::-1], mode="valid")
-    positions = np.arange(window, dtype=float)
-    head = np.polyval(np.polyfit(positions, y[:window], order), positions[:half])
-    tail = np.polyval(np.polyfit(positions, y[-window:], order), positions[-half:])
-    smoothed[:half], smoothed[-half:] = head, tail
-    return smoothed
+    return y.copy() if len(y) < window else savgol_filter(y, window, order, mode="interp")
 
 
 def smooth_curve(
@@ -118,22 +105,14 @@ def read_table(path: str, x_column: str) -> dict:
 
 def sampled_range(path: str, x_column: str) -> tuple[float, float] | None:
     """The range LOW, HIGH that the sweep of the results table at path sampled x_column from,
-    as its sweep.json (beside the table) says; None without one, or for a choice."""
-    config = Path(path).with_name("sweep.json")
+    as its sweep.json (beside the table) says; None without one (or a sweep's), or for a choice."""
     try:
-        samples = json.loads(config.read_text()).get("samples", [])
-    except (OSError, ValueError, AttributeError):
+        config = sweep.read_config(Path(path).with_name(sweep.CONFIG_NAME))
+        samples = [sweep.parse_sample(sample) for sample in config.get("samples", [])]
+    except sweep.UsageError:  # no sweep.json, not a sweep's, or a sample it would refuse
         return None
     names = {x_column.replace("_", "-"), x_column.replace("-", "_")}
-    for sample in samples:  # NAME=loguniform:LOW:HIGH, NAME=uniform:LOW:HIGH, NAME=choice:...
-        name, _, dist = str(sample).partition("=")
-        kind, *bounds = dist.split(":")
-        if name.strip().lstrip("-") in names and kind != "choice" and len(bounds) == 2:
-            try:
-                return float(bounds[0]), float(bounds[1])
-            except ValueError:
-                return None
-    return None
+    return next(((s.low, s.high) for s in samples if s.name in names and s.kind != "choice"), None)
 
 
 def default_bar_range(paths: list[str], tables: list[dict], x_column: str) -> tuple[float, float]:
@@ -331,9 +310,8 @@ def summary_table(
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.plot_sweep",
-        description="Plot sweep results tables (python -m a3c_tools.sweep) in the thesis's style.",
+    parser = tool_parser(
+        "plot_sweep", "Plot sweep results tables (python -m a3c_tools.sweep) in the thesis's style."
     )
     parser.add_argument("tables", nargs="+", help="results.csv files, one per configuration")
     parser.add_argument(
@@ -405,12 +383,10 @@ def main(argv: list[str] | None = None) -> int:
     values = np.concatenate([t["values"] for t in tables])
     if args.xrange:
         x_range = tuple(args.xrange)
-    elif values.size == 0:
-        x_range = (-6.0, -2.0) if log_x else (0.0, 1.0)
-    elif log_x:  # whole decades around the data: -6 -2 for the thesis's sweeps
+    elif log_x:  # whole decades around the data: -6 -2 for the thesis's sweeps (and no data)
         x_range = decades(values)
     else:
-        x_range = (float(values.min()), float(values.max()))
+        x_range = (float(values.min()), float(values.max())) if values.size else (0.0, 1.0)
     if args.bar_range:
         bar_range = tuple(args.bar_range)
     else:

@@ -16,7 +16,6 @@ writes the GIF.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from a3c_tools import AGENTS, agent_scripts, load_script, run_main
+from a3c_tools import AGENTS, agent_scripts, load_script, run_main, tool_parser
 
 FRAMES_PER_SECOND = {"catch": 10, "atari": 15}  # Catch has no clock; ALE: 60 Hz / frameskip 4
 
@@ -87,9 +86,7 @@ def write_gif(frames: list[np.ndarray], out: Path, fps: int, scale: int = 1) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.record_play", description=__doc__.split("\n\n")[0]
-    )
+    parser = tool_parser("record_play", __doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", help="a checkpoint.pt written by an agent script")
     parser.add_argument("-o", "--out", type=Path, required=True, help="the GIF to write")
     parser.add_argument("--seed", type=int, default=1, help="of the episode and its actions")

@@ -35,8 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from a3c_tools import confirmatory, results_folder
-from a3c_tools.confirmatory import Outcome, differences, plan_claim
+from a3c_tools.confirmatory import Outcome, catch_pairs, differences, plan_claim
 from a3c_tools.paired import (
     CATCH,
     MARGIN,
@@ -47,7 +46,6 @@ from a3c_tools.paired import (
     p_value,
     power,
     random_play,
-    read_rows,
     runs_for_power,
     smallest_effect,
     spread_interval,
@@ -139,28 +137,6 @@ def answer_of(
     return outcome.verdict
 
 
-def rows_of(folder: str) -> dict[str, dict]:
-    """run_id -> row of a line's finished runs (the folder under confirmatory's ROOT, as the
-    look reads it)."""
-    root = confirmatory.ROOT
-    return {row["run_id"]: row for row in read_rows(root / results_folder(folder, root))
-            if row["status"] == "ok"}  # fmt: skip
-
-
-def catch_pairs(claim: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A Catch claim's test pairs: (learning rates, baseline scores, the lines' scores (lines,
-    n), differences), over the run ids `differences` uses."""
-    test = claim["test"]
-    base = rows_of(test["baseline"])
-    lines = [rows_of(folder) for folder in test.get("lines", [test.get("line")])]
-    ids = [f"run-{i:04d}" for i in range(int(claim["runs"]))]
-    ids = [i for i in ids if i in base and all(i in line for line in lines)]
-    rates = np.array([float(base[i].get("learning-rate") or "nan") for i in ids])
-    b = np.array([float(base[i]["score"]) for i in ids])
-    x = np.array([[float(line[i]["score"]) for i in ids] for line in lines])
-    return rates, b, x, x.mean(axis=0) - b
-
-
 def by_learning_rate(rates: np.ndarray, d: np.ndarray) -> list[tuple[float, float, int, float]]:
     """The paired effect in each quartile of the learning rate: (lowest rate, highest rate,
     pairs, mean difference), from the lowest rates up."""
@@ -198,7 +174,7 @@ def floor_split(
 
 def catch_notes(claim: dict, level: float) -> list[str]:
     """Where a Catch claim's effect lies: by learning-rate quartile, and off the floor."""
-    rates, b, x, d = catch_pairs(claim)
+    rates, b, x, d = catch_pairs({**claim["test"], "runs": claim["runs"]})
     notes = []
     if not np.isnan(rates).any():  # (a line swept over no learning rate has none)
         quartiles = ", ".join(f"{mean:+.3f} ({low:.0e}-{high:.0e}, n = {n})"

@@ -156,7 +156,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import load_script, run_main, tyro_message
+from a3c_tools import load_script, run_main, tool_parser, tyro_message
 from a3c_tools.run_lock import IN_USE_TEXT, run_holder
 
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
@@ -666,17 +666,12 @@ def result_row(run: Run, result: dict) -> dict | None:
 # ------------------------------------------------------------------------------------------------
 # The output folder: sweep.json and results.csv
 # ------------------------------------------------------------------------------------------------
-def check_config(out: Path, config: dict) -> None:
-    """Write out/sweep.json, or check that the one there holds the same configuration; only
-    with the folder's lock held, so that two sweeps never both find it missing."""
-    path = out / CONFIG_NAME
-    if path.exists():
-        mismatch = config_mismatch(out, config)
-        if mismatch:
-            raise UsageError(mismatch)
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    _write_atomically(path, json.dumps(config, indent=2) + "\n")
+def write_config(out: Path, config: dict) -> None:
+    """Write out/sweep.json where there is none yet (config_mismatch has checked the one there);
+    only with the folder's lock held, so that two sweeps never both find it missing."""
+    if not (out / CONFIG_NAME).exists():
+        out.mkdir(parents=True, exist_ok=True)
+        _write_atomically(out / CONFIG_NAME, json.dumps(config, indent=2) + "\n")
 
 
 def config_mismatch(out: Path, config: dict) -> str | None:
@@ -1058,9 +1053,9 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         argv, fixed = argv[:split], argv[split + 1 :]
     else:
         fixed = []
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.sweep",
-        description="Run an agent script many times with sampled flags; collect a results table.",
+    parser = tool_parser(
+        "sweep",
+        "Run an agent script many times with sampled flags; collect a results table.",
         epilog="Flags after `--` go unchanged to every run. See the module docstring for more.",
     )
     parser.add_argument("script", help="the agent script, e.g. agents/a3c_ff.py")
@@ -1183,7 +1178,7 @@ def sweep(args: argparse.Namespace, fixed: list[str]) -> int:
             problem = foreign_checkpoint(args.script, run, out / RUNS_DIR / run.run_id)
             if problem is not None:
                 raise UsageError(problem)
-        check_config(out, config)
+        write_config(out, config)
         return run_sweep(args, out, runs, names)
 
 

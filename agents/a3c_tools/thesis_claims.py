@@ -65,8 +65,6 @@ pixels, which differ between matplotlib versions.
 
 from __future__ import annotations
 
-import argparse
-import csv
 import json
 import re
 import sys
@@ -75,7 +73,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from a3c_tools import read_toml, run_main
+from a3c_tools import read_toml, run_main, tool_parser
 
 if TYPE_CHECKING:  # the functions below import a3c_tools.confirmatory where they use it
     from a3c_tools.confirmatory import Outcome
@@ -122,12 +120,7 @@ def run_ids(runs: int) -> list[str]:
 
 def finished(folder: str, runs: int) -> bool:
     """Whether the committed folder's results.csv holds runs 0..runs-1 (ok or failed)."""
-    table = ROOT / folder / "results.csv"
-    if not table.is_file():
-        return False
-    with open(table, newline="") as f:
-        done = {row["run_id"] for row in csv.DictReader(f)}
-    return set(run_ids(runs)) <= done
+    return set(run_ids(runs)) <= {row["run_id"] for row in read_rows(ROOT / folder)}
 
 
 @dataclass(frozen=True)
@@ -168,17 +161,13 @@ def atari_scores(atari: dict, line: str) -> dict[str, float]:
     """run_id -> the final evaluation of an Atari line's runs that reached the row's steps, from
     its figure's results.csv (`a3c_tools.atari_figures ... --plot-only` writes it; run i has seed
     SEED + 1000 i); a run still in progress is left out ({} before any is drawn)."""
-    table = ROOT / atari["figure"] / "results.csv"
-    if not table.is_file():
-        return {}
-    with open(table, newline="") as f:
-        return {
-            f"run-{(int(row['seed']) - SEED) // 1000:04d}": float(row["final_score"])
-            for row in csv.DictReader(f)
-            if row["game"] == atari["game"]
-            and row["line"] == line
-            and int(row["final_step"]) >= atari["steps"]
-        }
+    return {
+        f"run-{(int(row['seed']) - SEED) // 1000:04d}": float(row["final_score"])
+        for row in read_rows(ROOT / atari["figure"])
+        if row["game"] == atari["game"]
+        and row["line"] == line
+        and int(row["final_step"]) >= atari["steps"]
+    }
 
 
 def compared(claim: dict) -> Looks | None:
@@ -462,33 +451,21 @@ def judge(claims: dict) -> list[Judged]:
     return judged
 
 
+def repeats(j: Judged, judged: list[Judged]) -> bool:
+    """Whether the row re-uses the runs of a row it names for the very same test (same_test)."""
+    return any(same_test(j.claim, o.claim) for o in judged if o.claim["id"] in ids_of(j.claim))
+
+
 def family_size(judged: list[Judged]) -> int:
     """The number of tests Holm's adjustment runs over."""
-    return len(
-        {
-            id(j.claim)
-            for j in judged
-            if j.p is not None
-            and not any(
-                same_test(j.claim, o.claim) for o in judged if o.claim["id"] in ids_of(j.claim)
-            )
-        }
-    )
+    return sum(j.p is not None and not repeats(j, judged) for j in judged)
 
 
 def chance_verdicts(judged: list[Judged]) -> float:
     """The directional verdicts expected by chance alone, were no line different from its
     baseline: each directional test's level (5%; 7.5% for an extended row's two looks)."""
-    total = 0.0
-    for j in judged:
-        if (
-            j.p is None
-            or j.claim["expect"] == "comparable"
-            or any(same_test(j.claim, o.claim) for o in judged if o.claim["id"] in ids_of(j.claim))
-        ):
-            continue
-        total += 0.075 if "extend" in j.claim else 0.05
-    return total
+    return sum((0.075 if "extend" in j.claim else 0.05 for j in judged if j.p is not None
+                and j.claim["expect"] != "comparable" and not repeats(j, judged)), 0.0)  # fmt: skip
 
 
 def shown_p(p: float | None) -> str:
@@ -552,9 +529,8 @@ def multiplicity(judged: list[Judged]) -> str:
     size = family_size(judged)
     decided = [j for j in judged if j.adjusted is not None
                and head_of(j.verdict) in ("reproduced", "contradicted")]  # fmt: skip
-    alone = [j for j in judged if j.adjusted is not None and not any(
-        same_test(j.claim, o.claim) for o in judged if o.claim["id"] in ids_of(j.claim))
-        and j.alone in ("reproduced", "contradicted")]  # fmt: skip
+    alone = [j for j in judged if j.adjusted is not None and not repeats(j, judged)
+             and j.alone in ("reproduced", "contradicted")]  # fmt: skip
     survive = (", ".join(f"{j.claim['id']} ({head_of(j.verdict)})" for j in decided)
                if decided else "none")  # fmt: skip
     struck = [j.claim["id"] for j in judged if "defect" in j.claim and j.adjusted is not None
@@ -1017,9 +993,7 @@ def render(claims: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.thesis_claims", description=__doc__.split("\n")[0]
-    )
+    parser = tool_parser("thesis_claims", __doc__.split("\n")[0])
     parser.add_argument(
         "-o",
         "--out",

@@ -10,12 +10,11 @@ Atari command); it is also shown per state, against ln 4 = 1.386 for Breakout's 
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
-from a3c_tools import run_main
+from a3c_tools import run_main, tool_parser
 
 MARKS = [m * 1_000_000 for m in (0.5, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)]
 ROWS = (
@@ -50,9 +49,8 @@ def table(folder: Path, rollout_states: int) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m a3c_tools.training_scalars",
-        description="A run's training scalars by 1M steps, from its TensorBoard events.",
+    parser = tool_parser(
+        "training_scalars", "A run's training scalars by 1M steps, from its TensorBoard events."
     )
     parser.add_argument("folder", type=Path, help="a run folder (with tensorboard/ inside)")
     parser.add_argument(
