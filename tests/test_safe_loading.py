@@ -163,7 +163,7 @@ def test_a_sweep_resumes_its_runs_checkpoint_made_on_a_host_of_other_precision(g
     out = tmp_path / "sweep"
     (out / "runs" / "run-0000").mkdir(parents=True)
     checkpoint = read_checkpoint(good)
-    planned = runtime.flags.resolve_precision("auto", checkpoint["args"]["envs_per_worker"])
+    planned = runtime.flags.resolve_precision("auto", 1)  # the sweep's run: one env per worker
     other = "fp32" if planned != "fp32" else "bf16-learn"
     checkpoint["args"].update(seed=11, total_timesteps=1000, num_workers=1, precision=other,
                               envs_per_worker=1)  # fmt: skip
