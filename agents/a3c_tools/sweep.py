@@ -156,7 +156,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from a3c_tools import load_script, run_main, tool_parser, tyro_message
+from a3c_tools import load_script, parsed_flags, run_main, tool_parser, tyro_message
 from a3c_tools.run_lock import IN_USE_TEXT, run_holder
 
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
@@ -1191,8 +1191,6 @@ def checked_run_args(script: str, runs: list[Run], out: Path, backend: str) -> l
     args_type = agent_args(Path(script))
     if args_type is None:
         return None
-    from a3c_tools import parsed_flags
-
     agent = getattr(load_script(Path(script)), "AGENT", None)
     runs_args, networks_built = [], set()
     for run in runs:
