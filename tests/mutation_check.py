@@ -74,6 +74,7 @@ STACKED_CONVS = ("agents/a3c_runtime/stacked_convs.py",)
 TORCH_CATCH = ("catch_env/torch_catch.py",)
 TOOLS_INIT = ("agents/a3c_tools/__init__.py",)
 SWEEP = ("agents/a3c_tools/sweep.py",)
+RUN_LOCK = ("agents/a3c_tools/run_lock.py",)
 ATARI_FIGURES = ("agents/a3c_tools/atari_figures.py",)
 PAIRED = ("agents/a3c_tools/paired.py",)
 CONFIRMATORY = ("agents/a3c_tools/confirmatory.py",)
@@ -582,6 +583,24 @@ MUTANTS = [
            "purge_step=resumed_step + 1 if resumed_step else None",
            "purge_step=resumed_step + 1 if resumed_step < 0 else None",
            (RUN_LOG_T, RES)),
+    Mutant("run-log-progress-totals", "a progress line logs the run's totals since its start "
+           "as its interval's", RUN_LOG,
+           "stats = dict(zip(Shared.STATS, (stats - last_stats).tolist(), strict=True))",
+           "stats = dict(zip(Shared.STATS, (stats - last_stats * 0).tolist(), strict=True))",
+           (RUN_LOG_T,)),
+    Mutant("run-log-progress-interval-kept", "the interval of a progress line is not restarted "
+           "by it: a line at every check after the first", RUN_LOG,
+           "self.last_progress = (now, global_step, stats.double().clone())",
+           "self.last_progress = (last_time, global_step, stats.double().clone())", (RUN_LOG_T,)),
+    Mutant("batched-progress-run-0-stats", "every run of a batch logs run 0's losses",
+           BATCHED_BACKEND, "stats = batch.stats.cpu()",
+           "stats = batch.stats.cpu()[[0] * len(logs)]", (BATCH_T,)),
+    Mutant("clear-run-folder-drops-lock", "a partial run's folder is emptied with its lock file: "
+           "two processes may then lock it at once", RUN_LOCK, "if path.name == RUN_LOCK:",
+           "if path.name == RUN_LOCK * 2:", (SWEEP_T,)),
+    Mutant("clear-run-folder-through-link", "a partial run's folder that is a link is emptied "
+           "where it points", RUN_LOCK, "if run_dir.is_symlink():",
+           "if run_dir.is_symlink() and False:", (SWEEP_T,)),
     Mutant("precision-auto-bf16-at-one-env", "--precision auto computes in bf16 at one env a "
            "worker (the thesis's algorithm, fp32 on every CPU)", FLAGS,
            'return "bf16" if envs_per_worker > 1 and native_bf16() else "fp32"',

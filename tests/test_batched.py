@@ -794,6 +794,7 @@ def test_each_batched_run_writes_the_runtimes_tensorboard_scalars(tmp_path):
     module = load_script("a3c_ff")
     runs = tiny_runs(module, tmp_path, log_interval=1e-9)
     assert [o["outcome"] for o in train_batched(module, runs)] == ["done", "done"]
+    losses = []
     for run in runs:
         run_dir = Path(run.args.run_dir)
         events = EventAccumulator(str(run_dir))
@@ -813,9 +814,11 @@ def test_each_batched_run_writes_the_runtimes_tensorboard_scalars(tmp_path):
             assert e.value == pytest.approx(run.args.learning_rate * (1 - e.step / 30))
         lengths = [e.value for e in events.Scalars("charts/episodic_length")]
         assert lengths == [15.0, 15.0]  # Catch's episodes, ended at steps 15 and 30
+        losses.append([e.value for e in events.Scalars("losses/value_loss")])
         lines = (run_dir / "stdout.log").read_text().splitlines()
         assert lines[0].startswith("step 5/30 (16.7%) | SPS") and len(lines) == 7
         assert lines[-1].startswith("done: final eval")
+    assert losses[0] != losses[1]  # each run's own (their seeds and learning rates differ)
 
 
 def test_a_batch_stopped_by_sigterm_names_it_and_resumes_from_its_checkpoints(

@@ -10,14 +10,18 @@ import torch
 import catch_env  # noqa: F401  (registers Catch-v0)
 
 
+def progress_args() -> SimpleNamespace:
+    return SimpleNamespace(total_timesteps=4000, learning_rate=1e-3, anneal_lr=True,
+                           log_interval=5.0)  # fmt: skip
+
+
 def test_a_resumed_runs_progress_shows_its_last_evaluation(tmp_path, capsys):
     (tmp_path / "evaluations.csv").write_text(
         "global_step,wall_time_s,mean_return,std_return,episodes\n"
         "0,0.1,0.2,0.4,5\n2000,3.5,0.75,0.4,5\n"
     )
-    args = SimpleNamespace(total_timesteps=4000, x=1)
-    log = runtime.RunLog(tmp_path, args, wall_offset=3.6)
-    log.progress(2500, 100.0, 1e-3, torch.zeros(len(runtime.Shared.STATS)))
+    log = runtime.RunLog(tmp_path, progress_args(), wall_offset=3.6)
+    log.progress(2500, torch.zeros(len(runtime.Shared.STATS)))
     log.close()
     assert "| eval 0.750 @ 2,000 |" in capsys.readouterr().out
 
@@ -66,14 +70,24 @@ def test_the_closing_line_labels_the_last_evaluation_truthfully(outcome, label, 
     assert "| 44,430 steps |" in line and summary["final_eval_step"] == 0
 
 
-def test_the_progress_line_gives_the_step_its_share_of_t_max_and_the_time_left(tmp_path, capsys):
-    args = SimpleNamespace(total_timesteps=4000, x=1)
-    log = runtime.RunLog(tmp_path, args, wall_offset=0.0)
-    log.progress(2500, 100.0, 1e-3, torch.zeros(len(runtime.Shared.STATS)))
+def test_the_progress_line_gives_the_step_its_share_of_t_max_and_the_time_left(
+    tmp_path, capsys, monkeypatch
+):
+    """2,000 steps in the 20 s since the last line (step 500's): SPS 100, and 1,500 steps left
+    take 15 s; TensorBoard gets the learning rate annealed to step 2,500."""
+    log = runtime.RunLog(tmp_path, progress_args(), wall_offset=0.0)
+    logged = {}
+    log.scalars = lambda values, step: logged.update(values)
+    log.last_progress = (1000.0, 500, torch.zeros(len(runtime.Shared.STATS)).double())
+    monkeypatch.setattr(runtime.run_log.time, "time", lambda: 1020.0)
+    assert log.progress_due()
+    log.progress(2500, torch.zeros(len(runtime.Shared.STATS)))
+    assert not log.progress_due()  # the next line 5 s (--log-interval) after this one
     log.close()
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert line.startswith("step 2,500/4,000 (62.5%) | SPS 100 | return ")
     assert line.endswith(f"| ETA {runtime.run_log.format_seconds(15.0)}")  # 1,500 steps at 100/s
+    assert logged["charts/SPS"] == 100.0 and logged["charts/learning_rate"] == 1e-3 * 1500 / 4000
 
 
 def test_the_progress_line_gives_the_mean_return_of_the_episodes_ended_in_its_interval(
@@ -81,13 +95,14 @@ def test_the_progress_line_gives_the_mean_return_of_the_episodes_ended_in_its_in
 ):
     """4 episodes ended since the last line, returns summing to 2.0 over 60 steps: the line and
     TensorBoard say return 0.500 and length 15."""
-    args = SimpleNamespace(total_timesteps=4000, x=1)
-    log = runtime.RunLog(tmp_path, args, wall_offset=0.0)
+    log = runtime.RunLog(tmp_path, progress_args(), wall_offset=0.0)
     logged = {}
     log.scalars = lambda values, step: logged.update(values)
     stats = dict.fromkeys(runtime.Shared.STATS, 0.0)
-    stats.update(episodes=4, return_sum=2.0, length_sum=60, updates=2, entropy=2.0)
-    log.progress(2500, 100.0, 1e-3, torch.tensor([stats[k] for k in runtime.Shared.STATS]))
+    stats.update(episodes=3, return_sum=1.0, length_sum=30, updates=1, entropy=5.0)
+    log.progress(1000, torch.tensor([stats[k] for k in runtime.Shared.STATS]))
+    stats.update(episodes=7, return_sum=3.0, length_sum=90, updates=3, entropy=7.0)
+    log.progress(2500, torch.tensor([stats[k] for k in runtime.Shared.STATS]))
     log.close()
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert "| return 0.500 |" in line, line

@@ -973,6 +973,29 @@ def test_the_sweep_knows_the_runtimes_lock_and_its_refusal(tmp_path):
     assert not (tmp_path / "nothing").exists()
 
 
+def test_a_partial_run_starts_again_in_its_emptied_folder_its_lock_file_kept(tmp_path):
+    """A run that wrote no checkpoint starts again in its folder, emptied all but its lock
+    file: the file the next run locks is the one any other process would lock (a removed lock
+    file would let two processes hold the folder at once). A run folder that is a link is
+    replaced by a folder, and what it pointed to is left as it was."""
+    run_dir = tmp_path / "run-0000"
+    (run_dir / "videos").mkdir(parents=True)
+    (run_dir / "evaluations.csv").write_text("global_step\n0\n")
+    (run_dir / "run.lock").write_text("12345\n")
+    lock_inode = (run_dir / "run.lock").stat().st_ino
+    listing = ["-c", "import os; print(sorted(os.listdir('.')))"]
+    result = sweep.execute_run(listing, str(run_dir))
+    assert result["returncode"] == 0 and (run_dir / "run.lock").stat().st_ino == lock_inode
+    assert sorted(p.name for p in run_dir.iterdir()) == ["run.lock", "stderr.log", "stdout.log"]
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "keep.txt").write_text("mine")
+    (tmp_path / "run-0001").symlink_to(elsewhere, target_is_directory=True)
+    result = sweep.execute_run(listing, str(tmp_path / "run-0001"))
+    assert result["returncode"] == 0 and not (tmp_path / "run-0001").is_symlink()
+    assert [p.name for p in elsewhere.iterdir()] == ["keep.txt"]
+
+
 def test_a_run_in_use_elsewhere_is_not_failed_and_runs_once_free(fake_agent, tmp_path):
     """Started again while one of its runs is resumed by hand, the sweep leaves that run alone,
     records no row for it, says "in use", exits 3 (not 1), and runs it on the next start."""

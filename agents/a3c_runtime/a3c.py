@@ -33,7 +33,7 @@ from .evaluation import (
     make_eval_envs,
 )
 from .flags import UsageError, probe_env, refuse_tf32, resolve_defaults
-from .hogwild import Shared, annealed_lr, seed_everything
+from .hogwild import Shared, seed_everything
 from .resume import given_flags, resumed_args
 from .run_folder import RunFolder, resume_folder, run_folder_path
 from .run_log import RunLog, last_evaluation, logged_steps, summarize
@@ -142,7 +142,6 @@ def watch(
     checkpoint_path = run_dir / "checkpoint.pt"
     outcome = None
     steady_start = None  # (time, step) once every worker has finished a rollout, for the SPS
-    last_log = (time.time(), start_step, shared.stats.clone())
     final_states: dict[int, list] = {}  # each worker's state as its loop ended
     behind = [False]  # the evaluator is more than LATE evaluations behind (announced once)
 
@@ -195,12 +194,8 @@ def watch(
                 outcome = "done"
             elif args.time_limit is not None and now - log.start >= args.time_limit:
                 outcome = "time limit"
-            if now - last_log[0] >= args.log_interval:
-                stats = shared.stats.clone()
-                sps = (global_step - last_log[1]) / (now - last_log[0])
-                lr = annealed_lr(args, global_step)
-                log.progress(global_step, sps, lr, (stats - last_log[2]).sum(0))
-                last_log = (now, global_step, stats)
+            if log.progress_due():
+                log.progress(global_step, shared.stats.sum(0))
         loop_ended = True
     finally:  # a failed write ends the loop too: the processes stop, the evaluator at once
         finished = loop_ended and outcome in ("done", "time limit") and not supervisor.failures

@@ -145,7 +145,6 @@ class BatchedA3C:
             square_avgs.append(optimizer.square_avg)
         seeds = [process_seed(args.seed, 0) for args in self.args]  # the workers'
         self.rngs = [np.random.default_rng(seed) for seed in seeds]
-        self.cpu_model = models[0]  # the checkpoints' network
         self.base = copy.deepcopy(models[0]).to(self.device)  # called with each run's weights
         self.conv_form = conv_form
         if conv_form == "matmul":
@@ -311,20 +310,17 @@ class BatchedA3C:
         generator, env and frames (and an LSTM's carried state)."""
         parts = (self.uniforms.generator(i), NumpyStateView(self.envs, i),
                  self.envs.stack[i : i + 1].cpu().numpy())  # fmt: skip
-        if self.state:
-            parts += (tuple(s[i].cpu().clone() for s in self.state),)
-        return parts
+        return parts + ((tuple(s[i].cpu().clone() for s in self.state),) if self.state else ())
 
     def checkpoint(self, i: int, run_dir: Path, wall_time: float) -> None:
+        """Run i's checkpoint, as its one-worker run writes it."""
         snapshot = {
             "model": self.network(i),
             "optimizer": {"square_avg": [s[i].cpu().clone() for s in self.optimizer.square_avg]},
             "global_step": self.step_count,
             "workers": {0: saved_state(self.worker_state(i))},
-            "pending_evaluations": [],
         }
-        shared = SimpleNamespace(model=self.cpu_model, global_step=lambda: self.step_count)
-        save_checkpoint(run_dir / "checkpoint.pt", shared, self.args[i], wall_time,
+        save_checkpoint(run_dir / "checkpoint.pt", None, self.args[i], wall_time,
                         self.agent.script, snapshot)  # fmt: skip
 
 
@@ -362,29 +358,61 @@ def train_batched(
     log_interval: float = 30.0,
 ) -> list[dict]:
     """Train the runs as one batch to their --total-timesteps, each run's folder locked (the
-    runtime's lock, where the caller took none) and written by the runtime's RunLog
-    (evaluations.csv, TensorBoard scalars, progress lines in stdout.log) and checkpoints.
-    Returns each run's outcome: "done" or "stopped by <signal>", its wall time and closing line.
-    should_stop() names the signal that stops the batch, or None: a stop checkpoints every run
-    at its last update. log_interval: seconds between the batch's console lines."""
+    runtime's lock, where the caller took none) and written as a run writes it: its RunLog
+    (evaluations.csv, TensorBoard scalars, progress lines in its stdout.log), its evaluations
+    and checkpoints at the marks (the runtime's MarkClock), its last checkpoint and final
+    evaluation. should_stop() names the signal that stops the batch, or None: a stop checkpoints
+    every run at its last update. log_interval: seconds between the batch's console lines.
+    Returns each run's outcome: "done" or "stopped by <signal>", its wall time and closing line."""
     set_up_device(device, runs[0].args.precision)
     batch = BatchedA3C(module, runs, device)  # (refuses runs it cannot batch: nothing written)
     allow_open_files(FILES_PER_RUN * len(runs) + 256)
     folders, logs, consoles = [], [], []
     try:
-        for run in runs[: batch.shown]:
+        for i, run in enumerate(runs[: batch.shown]):
             folders.append(run.folder or RunFolder(Path(run.args.run_dir)))
-            consoles.append(open(folders[-1].path / "stdout.log", "a"))  # noqa: SIM115
-            logs.append(RunLog(folders[-1].path, run.args, batch.wall_offsets[len(logs)],
-                               resumed_step=batch.step_count, console=consoles[-1]))  # fmt: skip
-        start_step = batch.step_count
-        stopped_by = train_logged(batch, [f.path for f in folders], logs, should_stop,
-                                  log_interval)  # fmt: skip
+            consoles.append(open(folders[i].path / "stdout.log", "a"))  # noqa: SIM115
+            logs.append(RunLog(folders[i].path, run.args, batch.wall_offsets[i],
+                               resumed_step=batch.step_count, console=consoles[i]))  # fmt: skip
+        start = batch.step_count
+        clock = MarkClock(torch.empty(2, dtype=torch.int64), batch.args[0], start)
+        # (a resumed run's evaluation of its checkpoint's step may be logged already)
+        logged = [logged_steps(log.csv_path, start) for log in logs]
+
+        def evaluate_all() -> None:
+            for i, log in enumerate(logs):
+                if batch.step_count not in logged[i]:
+                    log.evaluation(batch.evaluate(i))
+                    logged[i].add(batch.step_count)
+
+        if start == 0:
+            evaluate_all()  # the untrained network's, as every run's first row
+        last_line, stopped_by = (time.time(), start), None
+        while batch.step_count < batch.total and not (stopped_by := should_stop()):
+            batch.update()
+            evaluate, checkpoint = clock.reached(step := batch.step_count)
+            if evaluate:
+                evaluate_all()
+            for i, log in enumerate(logs if checkpoint else ()):
+                batch.checkpoint(i, folders[i].path, log.wall_time())
+            if logs[0].progress_due():  # each run's scalars, as a run logs them
+                stats = batch.stats.cpu()
+                for i, log in enumerate(logs):
+                    log.progress(step, stats[i])
+            if (now := time.time()) - last_line[0] >= log_interval:
+                sps = (step - last_line[1]) * len(logs) / (now - last_line[0])
+                print(f"batched: {len(logs)} runs at step {step:,}/{batch.total:,} | "
+                      f"{sps:,.0f} run-steps/s", flush=True)  # fmt: skip
+                last_line = (now, step)
+        for i, log in enumerate(logs):  # every run's last checkpoint, as a run's last
+            batch.checkpoint(i, folders[i].path, log.wall_time())
+        if not stopped_by:
+            evaluate_all()
+        outcome = f"stopped by {stopped_by}" if stopped_by else "done"
         outcomes = []
         for log, folder in zip(logs, folders, strict=True):
             log.close()
-            sps = (batch.step_count - start_step) / max(time.time() - log.start, 1e-9)
-            outcome = f"stopped by {stopped_by}" if stopped_by else "done"
+            sps = (batch.step_count - start) / max(time.time() - log.start, 1e-9)
             summary = summarize(outcome, sps, batch.step_count, log, folder.path, len(logs))
             outcomes.append({"outcome": outcome, "wall_time_s": summary["wall_time_s"],
                              "stdout": summary["closing_line"]})  # fmt: skip
@@ -399,59 +427,3 @@ def train_batched(
         for run, folder in zip(runs, folders, strict=False):
             if run.folder is None:  # the lock taken here
                 folder.close()
-
-
-def train_logged(
-    batch: BatchedA3C,
-    run_dirs: list[Path],
-    logs: list[RunLog],
-    should_stop: Callable[[], str | None],
-    log_interval: float,
-) -> str | None:
-    """train_batched's loop: the updates, each run's evaluations and checkpoints at the marks
-    (the runtime's MarkClock, as a worker's), its scalars every --log-interval seconds, and its
-    last checkpoint and final evaluation. Returns the signal that stopped it, or None."""
-    a, start_step = batch.args[0], batch.step_count
-    clock = MarkClock(torch.empty(2, dtype=torch.int64), a, start_step)
-    # (a resumed run's evaluation of its checkpoint's step may be logged already)
-    logged = [logged_steps(log.csv_path, start_step) for log in logs]
-
-    def evaluate_all() -> None:
-        for i, (log, steps) in enumerate(zip(logs, logged, strict=True)):
-            if batch.step_count not in steps:
-                log.evaluation(batch.evaluate(i))
-                steps.add(batch.step_count)
-
-    def checkpoint_all() -> None:
-        for i, (run_dir, log) in enumerate(zip(run_dirs, logs, strict=True)):
-            batch.checkpoint(i, run_dir, log.wall_time())
-
-    if start_step == 0:
-        evaluate_all()  # the untrained network's, as every run's first row
-    last_log = last_progress = (time.time(), start_step)
-    stats = batch.stats.to("cpu", copy=True)
-    stopped_by = None
-    while batch.step_count < batch.total and not (stopped_by := should_stop()):
-        batch.update()
-        step = batch.step_count
-        evaluate, checkpoint = clock.reached(step)
-        if evaluate:
-            evaluate_all()
-        if checkpoint:
-            checkpoint_all()
-        now = time.time()
-        if now - last_progress[0] >= a.log_interval:  # each run's scalars, as a run logs them
-            sps = (step - last_progress[1]) / (now - last_progress[0])
-            new_stats = batch.stats.to("cpu", copy=True)
-            for i, log in enumerate(logs):
-                log.progress(step, sps, annealed_lr(batch.args[i], step), new_stats[i] - stats[i])
-            last_progress, stats = (now, step), new_stats
-        if now - last_log[0] >= log_interval:
-            sps = (step - last_log[1]) * len(logs) / (now - last_log[0])
-            print(f"batched: {len(logs)} runs at step {step:,}/{batch.total:,} | "
-                  f"{sps:,.0f} run-steps/s", flush=True)  # fmt: skip
-            last_log = (now, step)
-    checkpoint_all()  # every run's last checkpoint, as a run's last
-    if not stopped_by:
-        evaluate_all()
-    return stopped_by

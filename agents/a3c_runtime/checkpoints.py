@@ -48,7 +48,7 @@ SCRIPT_NAME = re.compile(r"(future_work/)?a3c_[A-Za-z0-9_]+\.py")
 
 def save_checkpoint(
     path: Path,
-    shared: Shared,
+    shared: Shared | None,
     args: Any,
     wall_time: float,
     script: str = "",
@@ -56,15 +56,20 @@ def save_checkpoint(
 ) -> None:
     """Write atomically (temp file + rename) so that a crash never leaves a corrupt checkpoint.
     Of theta, the optimizer statistics and the global step as they are in `shared`, or as a
-    worker copied them at a checkpoint mark (`snapshot`: model, optimizer, global_step); either
-    may add what an exact resume needs (a3c_runtime.snapshots): `workers`, each worker's state
-    (snapshots.saved_state), and `pending_evaluations`, the (step, theta) evaluations not taken."""
+    worker copied them at a checkpoint mark (`snapshot`: model, optimizer, global_step; shared
+    None: a batched run's); either may add what an exact resume needs (a3c_runtime.snapshots):
+    `workers`, each worker's state (snapshots.saved_state), and `pending_evaluations`, the
+    (step, theta) evaluations not taken."""
     snapshot = snapshot or {}
+    if "model" not in snapshot:  # theta, its statistics and the step as they are in shared
+        snapshot = {**snapshot, "model": shared.model.state_dict(),
+                    "optimizer": shared.optimizer.state_dict(),
+                    "global_step": shared.global_step()}  # fmt: skip
     raw = {
         "script": script,
-        "model": snapshot.get("model") or shared.model.state_dict(),
-        "optimizer": snapshot.get("optimizer") or shared.optimizer.state_dict(),
-        "global_step": snapshot.get("global_step", shared.global_step()),
+        "model": snapshot["model"],
+        "optimizer": snapshot["optimizer"],
+        "global_step": snapshot["global_step"],
         "wall_time": wall_time,
         "args": asdict(args),
         "workers": snapshot.get("workers", {}),

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from .checkpoints import WriteFailed, write_atomically
-from .hogwild import Shared
+from .hogwild import Shared, annealed_lr
 
 CSV_COLUMNS = ["global_step", "wall_time_s", "mean_return", "std_return", "episodes"]
 
@@ -116,6 +116,8 @@ class RunLog:
         self.last_eval = last_evaluation(self.csv_path)  # a resumed run's, until its next one
         self.recent_return = float("nan")
         self.eval_seconds = 0.0
+        # (time, step, Shared.STATS totals) of the last progress line: its interval's start
+        self.last_progress = (self.start, resumed_step, torch.zeros(len(Shared.STATS)).double())
         try:
             self.csv_fd = os.open(self.csv_path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         except OSError as e:
@@ -198,9 +200,19 @@ class RunLog:
         if self.wandb is not None:
             self.wandb.log({**values, "global_step": global_step})
 
-    def progress(self, global_step: int, sps: float, lr: float, stats_delta: torch.Tensor) -> None:
-        """Log the scalars of the last interval; stats_delta holds Shared.STATS summed."""
-        stats = dict(zip(Shared.STATS, stats_delta.tolist(), strict=True))
+    def progress_due(self) -> bool:
+        """Whether --log-interval seconds have passed since the last progress line."""
+        return time.time() - self.last_progress[0] >= self.args.log_interval
+
+    def progress(self, global_step: int, stats: torch.Tensor) -> None:
+        """Log the scalars of the interval since the last progress line: its steps per second,
+        the learning rate, and the change of `stats`, the run's Shared.STATS totals (summed over
+        its workers)."""
+        now, (last_time, last_step, last_stats) = time.time(), self.last_progress
+        sps = (global_step - last_step) / max(now - last_time, 1e-9)
+        lr = annealed_lr(self.args, global_step)
+        self.last_progress = (now, global_step, stats.double().clone())
+        stats = dict(zip(Shared.STATS, (stats - last_stats).tolist(), strict=True))
         episodes, updates = stats["episodes"], stats["updates"]
         scalars = {"charts/SPS": sps, "charts/learning_rate": lr}
         if episodes > 0:

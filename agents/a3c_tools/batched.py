@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -26,7 +25,7 @@ from a3c_runtime.batched import (
     allow_open_files,
     train_batched,
 )
-from a3c_runtime.run_folder import LOCK_FILE, RunFolder
+from a3c_runtime.run_folder import RunFolder
 from a3c_runtime.snapshots import arrays_of
 
 from catch_env.catch import BALL_START_ROW
@@ -52,18 +51,6 @@ def episode_row(checkpoint: Checkpoint | None) -> int:
         return BALL_START_ROW
     env_state = arrays_of(checkpoint.workers[0][1]["env"])  # (restored_state reads it so)
     return int(np.asarray(env_state["env"]["ball_row"])[0])
-
-
-def clear_run_folder(folder: RunFolder) -> None:
-    """Remove what a partial run left in its locked folder, all but the lock file (removing
-    that would let another process take the folder while this one trains there)."""
-    for path in folder.path.iterdir():
-        if path.name == LOCK_FILE:
-            continue
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        else:
-            path.unlink()
 
 
 def check_batchable(script: str, runs_args: list[Any] | None, device: str = "cpu") -> None:
@@ -119,7 +106,7 @@ def run_batched(
     resume from their checkpoints on the next start). should_stop() names the signal that stops
     the sweep, or None."""
     from a3c_tools import load_script, parsed_flags
-    from a3c_tools.run_lock import IN_USE_TEXT, run_holder
+    from a3c_tools.run_lock import IN_USE_TEXT, clear_run_folder, run_holder
 
     module = load_script(script)
     allow_open_files(FILES_PER_RUN * len(todo) + 256)
@@ -144,7 +131,7 @@ def run_batched(
             folders.append(folder)
             checkpoint = resumable_checkpoint(module.AGENT, run_dir)
             if checkpoint is None:  # a partial run that wrote no checkpoint starts again
-                clear_run_folder(folder)
+                clear_run_folder(run_dir)
             start = checkpoint.global_step if checkpoint else 0
             group = groups.setdefault((start, episode_row(checkpoint)), [])
             group.append((run, BatchedRun(args, checkpoint, folder)))

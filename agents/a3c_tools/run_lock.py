@@ -1,9 +1,11 @@
 """Who holds a run folder's lock, read without importing the runtime (and so torch): the sweep
-and its batched backend both ask before they touch a run folder."""
+and its batched backend both ask before they touch a run folder; and the clearing of a partial
+run's folder, which both do."""
 
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 RUN_LOCK = "run.lock"  # a3c_runtime.run_folder.LOCK_FILE: held by the process training in a run
@@ -33,3 +35,19 @@ def run_holder(run_dir: Path) -> str | None:
         return None
     finally:
         os.close(fd)  # also gives back a lock taken above
+
+
+def clear_run_folder(run_dir: Path) -> None:
+    """Empty the folder of a partial run that wrote no checkpoint, for the run to start again,
+    all but its lock file: removing that would let two processes lock the folder at once (one
+    the removed file, one a new one)."""
+    if run_dir.is_symlink():  # the link goes, never what it points to
+        run_dir.unlink()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for path in run_dir.iterdir():
+        if path.name == RUN_LOCK:
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()

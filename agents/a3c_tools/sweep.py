@@ -146,7 +146,6 @@ import random
 import re
 import reprlib
 import shlex
-import shutil
 import signal
 import subprocess
 import sys
@@ -157,7 +156,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from a3c_tools import load_script, parsed_flags, run_main, tool_parser, tyro_message
-from a3c_tools.run_lock import IN_USE_TEXT, run_holder
+from a3c_tools.run_lock import IN_USE_TEXT, clear_run_folder, run_holder
 
 SCORE_LAST = 5  # the thesis scores a run by the mean of its final 5 evaluations
 SEED_STRIDE = 1000  # run i gets seed + SEED_STRIDE * i
@@ -515,8 +514,7 @@ def execute_run(
         # its data sent where this command says (--resume takes that from the command line only)
         command = [command[0], "--resume", str(checkpoint), *split_elsewhere(command[1:])[1]]
     else:  # a partial run that wrote no checkpoint starts again
-        shutil.rmtree(run_path, ignore_errors=True)
-        run_path.mkdir(parents=True)
+        clear_run_folder(run_path)
     start = time.time()
     interrupted = False
     with open(run_path / "stdout.log", "ab") as out, open(run_path / "stderr.log", "ab") as err:
