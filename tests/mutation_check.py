@@ -598,9 +598,9 @@ MUTANTS = [
     Mutant("clear-run-folder-drops-lock", "a partial run's folder is emptied with its lock file: "
            "two processes may then lock it at once", RUN_LOCK, "if path.name == RUN_LOCK:",
            "if path.name == RUN_LOCK * 2:", (SWEEP_T,)),
-    Mutant("clear-run-folder-through-link", "a partial run's folder that is a link is emptied "
-           "where it points", RUN_LOCK, "if run_dir.is_symlink():",
-           "if run_dir.is_symlink() and False:", (SWEEP_T,)),
+    Mutant("clear-run-folder-through-link", "a link to a folder in a partial run's folder is "
+           "removed as a folder (which rmtree refuses: the sweep fails there)", RUN_LOCK,
+           "if path.is_dir() and not path.is_symlink():", "if path.is_dir():", (SWEEP_T,)),
     Mutant("precision-auto-bf16-at-one-env", "--precision auto computes in bf16 at one env a "
            "worker (the thesis's algorithm, fp32 on every CPU)", FLAGS,
            'return "bf16" if envs_per_worker > 1 and native_bf16() else "fp32"',

@@ -976,23 +976,24 @@ def test_the_sweep_knows_the_runtimes_lock_and_its_refusal(tmp_path):
 def test_a_partial_run_starts_again_in_its_emptied_folder_its_lock_file_kept(tmp_path):
     """A run that wrote no checkpoint starts again in its folder, emptied all but its lock
     file: the file the next run locks is the one any other process would lock (a removed lock
-    file would let two processes hold the folder at once). A run folder that is a link is
-    replaced by a folder, and what it pointed to is left as it was."""
-    run_dir = tmp_path / "run-0000"
-    (run_dir / "videos").mkdir(parents=True)
-    (run_dir / "evaluations.csv").write_text("global_step\n0\n")
-    (run_dir / "run.lock").write_text("12345\n")
-    lock_inode = (run_dir / "run.lock").stat().st_ino
-    listing = ["-c", "import os; print(sorted(os.listdir('.')))"]
-    result = sweep.execute_run(listing, str(run_dir))
-    assert result["returncode"] == 0 and (run_dir / "run.lock").stat().st_ino == lock_inode
-    assert sorted(p.name for p in run_dir.iterdir()) == ["run.lock", "stderr.log", "stdout.log"]
-    elsewhere = tmp_path / "elsewhere"
+    file would let two processes hold the folder at once). A run folder that is a link (the
+    runs kept on another disk, say) stays one, its run in the folder it points to; a link in
+    it is removed, and what that pointed to is left as it was."""
+    elsewhere, disk = tmp_path / "elsewhere", tmp_path / "disk"
     elsewhere.mkdir()
     (elsewhere / "keep.txt").write_text("mine")
-    (tmp_path / "run-0001").symlink_to(elsewhere, target_is_directory=True)
-    result = sweep.execute_run(listing, str(tmp_path / "run-0001"))
-    assert result["returncode"] == 0 and not (tmp_path / "run-0001").is_symlink()
+    (disk / "run-0000" / "videos").mkdir(parents=True)
+    (disk / "run-0000" / "evaluations.csv").write_text("global_step\n0\n")
+    (disk / "run-0000" / "run.lock").write_text("12345\n")
+    (disk / "run-0000" / "linked").symlink_to(elsewhere, target_is_directory=True)
+    lock_inode = (disk / "run-0000" / "run.lock").stat().st_ino
+    run_dir = tmp_path / "runs" / "run-0000"
+    run_dir.parent.mkdir()
+    run_dir.symlink_to(disk / "run-0000", target_is_directory=True)
+    result = sweep.execute_run(["-c", "pass"], str(run_dir))
+    assert result["returncode"] == 0 and run_dir.is_symlink()
+    assert (run_dir / "run.lock").stat().st_ino == lock_inode
+    assert sorted(p.name for p in run_dir.iterdir()) == ["run.lock", "stderr.log", "stdout.log"]
     assert [p.name for p in elsewhere.iterdir()] == ["keep.txt"]
 
 

@@ -40,9 +40,8 @@ def run_holder(run_dir: Path) -> str | None:
 def clear_run_folder(run_dir: Path) -> None:
     """Empty the folder of a partial run that wrote no checkpoint, for the run to start again,
     all but its lock file: removing that would let two processes lock the folder at once (one
-    the removed file, one a new one)."""
-    if run_dir.is_symlink():  # the link goes, never what it points to
-        run_dir.unlink()
+    the removed file, one a new one). A run folder that is a link is the folder it points to,
+    as the run itself writes there; a link in it is removed, never followed."""
     run_dir.mkdir(parents=True, exist_ok=True)
     for path in run_dir.iterdir():
         if path.name == RUN_LOCK:
