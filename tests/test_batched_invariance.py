@@ -122,9 +122,9 @@ import os, signal, sys
 sys.path[:0] = [{agents!r}, {root!r}]
 import a3c_runtime.batched as b
 write = b.save_checkpoint
-def save_checkpoint(path, shared, *rest):
-    write(path, shared, *rest)
-    if path.parent.name == "run-0000" and shared.global_step() >= {step}:
+def save_checkpoint(path, shared, args, wall_time, script, snapshot):
+    write(path, shared, args, wall_time, script, snapshot)
+    if path.parent.name == "run-0000" and snapshot["global_step"] >= {step}:
         os.kill(os.getpid(), signal.SIGKILL)
 b.save_checkpoint = save_checkpoint
 from a3c_tools.sweep import main
