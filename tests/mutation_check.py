@@ -540,6 +540,9 @@ MUTANTS = [
            "the plan as the plan's own", CAMPAIGN,
            "new_rows = rows[sweep.first_look :][: sweep.runs - sweep.first_look]",
            "new_rows = rows[: sweep.runs - sweep.first_look]", (CAMPAIGN_T,)),
+    Mutant("campaign-batched-cost-per-run", "a batched line's CPU-hours count the batch's wall "
+           "time once per run", CAMPAIGN, "cost = [c / max(sweep.runs, 1) for c in cost]",
+           "cost = [c / max(1, 1) for c in cost]", (CAMPAIGN_T,)),
     Mutant("campaign-wall-time-double-counts", "an item's wall time counts sweeps side by side "
            "twice", CAMPAIGN, "total += max(0.0, end - max(start, reached))",
            "total += max(0.0, end - start)", (CAMPAIGN_T,)),

@@ -656,6 +656,36 @@ def test_a_line_that_names_the_batched_backend_runs_batched_on_the_campaigns_dev
     assert bad.returncode == 2 and "backend 'ray'; valid: local, batched" in bad.stderr
 
 
+def test_a_batched_lines_runs_share_its_cpu_hours(tmp_path):
+    """A batched line's runs ran as one batch on one core, each run's wall time the batch's: the
+    line cost that wall time once, not once per run (the process line: each run's own)."""
+    ff = ROOT / "agents" / "a3c_ff.py"
+    plan = write_plan(
+        tmp_path,
+        f"""
+        [[item]]
+        id = "g"
+        title = "the backends"
+        kind = "sweep"
+        runs = 2
+        seed = 7900
+        total_timesteps = 100
+        lines = [{{ script = "{ff}", out = "{tmp_path / "local"}" }},
+                 {{ script = "{ff}", out = "{tmp_path / "batched"}", backend = "batched" }}]
+        """,
+    )
+    for out in ("local", "batched"):  # two finished runs, each an hour on its clock
+        (tmp_path / out).mkdir()
+        with (tmp_path / out / "results.csv").open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=["run_id", "status", "wall_time_s", "flags"])
+            writer.writeheader()
+            writer.writerows({"run_id": f"run-000{i}", "status": "ok", "wall_time_s": "3600",
+                              "flags": "--num-workers 1"} for i in range(2))  # fmt: skip
+    result = run_main(campaign.main, [str(plan), "--status"])
+    assert result.returncode == 0, result.stderr
+    assert "| g: the backends | 4 of 4 | 3.0 | 0.0 |" in result.stdout
+
+
 @pytest.mark.parametrize("native", [True, False])
 def test_the_cpu_column_says_whether_the_cpu_has_native_bf16(monkeypatch, native):
     """Two VMs both called "AMD EPYC" ran the campaign, one with native bf16 and one without,

@@ -54,8 +54,9 @@ each Catch sweep of a script the batched backend takes (a3c_runtime.batchable.BA
 one batched program on the GPU, and every other sweep (Atari, the future-work scripts) on
 the process backend as before; SWEEPS.tsv names the device of a batched sweep. A line may so
 hold runs of both backends: run i is the same run on either (tests/test_batched.py), but for the
-order of floating-point sums. A batched sweep's runs share one wall clock, so its CPU-hours in
-PROGRESS.md are the batch's wall time per run, not CPU time. `--batchable-last` (on a CPU) runs
+order of floating-point sums. A batched sweep's runs share one wall clock and one core (or
+device), so a run of it costs its wall time over the line's runs (their batch) in PROGRESS.md.
+`--batchable-last` (on a CPU) runs
 those Catch sweeps after every other sweep of the plan, so that the CPU first does what a GPU
 could not batch while a device, when one is lent, runs the rest; the order of the runs changes
 nothing in a plan's analysis, which waits for all of them.
@@ -346,6 +347,8 @@ def progress(items: list[Item], log: Path | None = None) -> tuple[str, bool]:
             rows = read_rows(sweep.out)
             new_rows = rows[sweep.first_look :][: sweep.runs - sweep.first_look]
             cost = [cpu_hours(r) for r in rows]
+            if flag_value(sweep.command, "--backend") == "batched":  # one core: its runs' clock
+                cost = [c / max(sweep.runs, 1) for c in cost]  # (a batch of the line's runs)
             known = cost or [cpu_hours(r) for r in read_rows(sweep.source)]
             per_run = sum(known) / len(known) if known else (item.cpu_hours_per_run or 0.0)
             done += len(new_rows)
