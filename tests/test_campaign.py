@@ -631,12 +631,11 @@ def test_with_the_batched_backend_its_catch_sweeps_run_as_one_program(tmp_path):
     assert logged[7].startswith("batched on cpu; ")
 
 
-def test_a_line_that_names_the_batched_backend_runs_batched_on_the_campaigns_device(tmp_path):
-    """A study of the backends: the plan's line says backend = "batched"; it runs so on the
-    campaign's --device (cpu by default), its twin on the process backend; a backend the
-    campaign lacks is a bad plan."""
+def backends_item(tmp_path: Path, backend: str) -> str:
+    """A plan item of a study of the backends: two lines of FF, tmp_path/local on the process
+    backend and tmp_path/batched on `backend`."""
     ff = ROOT / "agents" / "a3c_ff.py"
-    item = f"""
+    return f"""
         [[item]]
         id = "g"
         title = "the backends"
@@ -645,35 +644,27 @@ def test_a_line_that_names_the_batched_backend_runs_batched_on_the_campaigns_dev
         seed = 7900
         total_timesteps = 100
         lines = [{{ script = "{ff}", out = "{tmp_path / "local"}" }},
-                 {{ script = "{ff}", out = "{tmp_path / "batched"}", backend = "BACKEND" }}]
+                 {{ script = "{ff}", out = "{tmp_path / "batched"}", backend = "{backend}" }}]
         """
-    plan = write_plan(tmp_path, item.replace("BACKEND", "batched"))
+
+
+def test_a_line_that_names_the_batched_backend_runs_batched_on_the_campaigns_device(tmp_path):
+    """A study of the backends: the plan's line says backend = "batched"; it runs so on the
+    campaign's --device (cpu by default), its twin on the process backend; a backend the
+    campaign lacks is a bad plan."""
+    plan = write_plan(tmp_path, backends_item(tmp_path, "batched"))
     for extra, device in (([], "cpu"), (["--backend", "batched", "--device", "cuda"], "cuda")):
         printed = run_main(campaign.main, [str(plan), "--dry-run", *extra]).stdout.splitlines()
         wanted = f"--backend batched --device {device} --"
         assert [wanted in line for line in printed] == [extra != [], True], printed
-    bad = run_main(campaign.main, [str(write_plan(tmp_path, item.replace("BACKEND", "ray")))])
+    bad = run_main(campaign.main, [str(write_plan(tmp_path, backends_item(tmp_path, "ray")))])
     assert bad.returncode == 2 and "backend 'ray'; valid: local, batched" in bad.stderr
 
 
 def test_a_batched_lines_runs_share_its_cpu_hours(tmp_path):
     """A batched line's runs ran as one batch on one core, each run's wall time the batch's: the
     line cost that wall time once, not once per run (the process line: each run's own)."""
-    ff = ROOT / "agents" / "a3c_ff.py"
-    plan = write_plan(
-        tmp_path,
-        f"""
-        [[item]]
-        id = "g"
-        title = "the backends"
-        kind = "sweep"
-        runs = 2
-        seed = 7900
-        total_timesteps = 100
-        lines = [{{ script = "{ff}", out = "{tmp_path / "local"}" }},
-                 {{ script = "{ff}", out = "{tmp_path / "batched"}", backend = "batched" }}]
-        """,
-    )
+    plan = write_plan(tmp_path, backends_item(tmp_path, "batched"))
     for out in ("local", "batched"):  # two finished runs, each an hour on its clock
         (tmp_path / out).mkdir()
         with (tmp_path / out / "results.csv").open("w", newline="") as f:
